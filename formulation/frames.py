@@ -1,0 +1,154 @@
+"""Discrete Elastic Rod frames in numpy (DESIGN section 3).
+
+Conventions (used by every other module):
+
+* edges ``e^j = x_{j+1} - x_j``, tangents ``t^j = e^j / |e^j|``, ``j = 0..n-2``;
+* a reference frame per edge ``(a1^j, a2^j, t^j)`` with ``a2 = t x a1``;
+* material frame ``d1 = cos(th) a1 + sin(th) a2``, ``d2 = -sin(th) a1 + cos(th) a2``;
+* the parallel transport ``P(t_from -> t_to)`` is the rotation about ``b = t_from x t_to`` taking
+  ``t_from`` to ``t_to``, in the branch-free form (Rodrigues with ``cos = c = t_from . t_to``)
+  ``P v = c v + b x v + b (b . v) / (1 + c)``, singular only for opposite tangents;
+* the reference twist at interior vertex ``i`` is the signed angle, about ``t^i``, from the space-parallel
+  transported ``a1^{i-1}`` to ``a1^i``; it is updated incrementally (Bergou et al. 2010) so that it
+  never wraps at +-pi.
+
+The input shape's frames are space-parallel (Bishop) frames: reference twist 0 by construction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+#: Fallback directors for the first edge when "up" is (nearly) parallel to it, tried in order.
+FALLBACK_AXES = (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+#: Below this sine of the angle between "up" and the first edge, the fallback axis is used.
+PARALLEL_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class Frames:
+    """Reference frames of one strand configuration.
+
+    tangents: (n-1, 3) unit edge tangents; a1: (n-1, 3) reference directors (unit, perpendicular to
+    the tangents); reference_twist: (n-2,) reference twist per interior vertex, rad.
+    """
+
+    tangents: np.ndarray
+    a1: np.ndarray
+    reference_twist: np.ndarray
+
+    @property
+    def a2(self) -> np.ndarray:
+        return np.cross(self.tangents, self.a1)
+
+
+def edges(points: np.ndarray) -> np.ndarray:
+    """Edge vectors e^j = x_{j+1} - x_j, shape (n-1, 3), metres."""
+    return np.diff(points, axis=0)
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` normalized to unit length."""
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def parallel_transport(t_from: np.ndarray, t_to: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate ``v`` by the minimal rotation taking unit ``t_from`` to unit ``t_to`` (row-wise).
+
+    P v = c v + b x v + b (b.v) / (1 + c),  b = t_from x t_to,  c = t_from . t_to.
+    """
+    b = np.cross(t_from, t_to)
+    c = np.sum(t_from * t_to, axis=-1, keepdims=True)
+    return c * v + np.cross(b, v) + b * np.sum(b * v, axis=-1, keepdims=True) / (1.0 + c)
+
+
+def signed_angle(u: np.ndarray, v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Signed angle from ``u`` to ``v`` about ``axis`` (row-wise), rad, in (-pi, pi]."""
+    return np.arctan2(np.sum(np.cross(u, v) * axis, axis=-1), np.sum(u * v, axis=-1))
+
+
+def rotate_about(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotate ``v`` (perpendicular to unit ``axis``) by ``angle`` about ``axis`` (row-wise)."""
+    angle = np.asarray(angle)[..., None]
+    return np.cos(angle) * v + np.sin(angle) * np.cross(axis, v)
+
+
+def default_director(first_tangent: np.ndarray, gravity: np.ndarray) -> np.ndarray:
+    """Default a1 of edge 0: "up" (minus gravity) projected perpendicular to the first edge.
+
+    When gravity is zero, "up" is +z. When "up" is (nearly) parallel to the first edge, the first of
+    FALLBACK_AXES that is not is projected instead (DESIGN section 3).
+    """
+    g = np.asarray(gravity, dtype=float)
+    up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
+    for candidate in (up, *FALLBACK_AXES):
+        projected = candidate - np.dot(candidate, first_tangent) * first_tangent
+        if np.linalg.norm(projected) > PARALLEL_TOLERANCE:
+            return projected / np.linalg.norm(projected)
+    raise AssertionError("unreachable: two orthogonal fallback axes cannot both be parallel")
+
+
+def project_director(first_tangent: np.ndarray, director: np.ndarray) -> np.ndarray:
+    """A user director made perpendicular to the first edge and unit; error if parallel to it."""
+    d = np.asarray(director, dtype=float)
+    projected = d - np.dot(d, first_tangent) * first_tangent
+    norm = np.linalg.norm(projected)
+    if not np.isfinite(norm) or norm <= PARALLEL_TOLERANCE * max(np.linalg.norm(d), 1e-300):
+        raise ValueError(
+            f"director {d.tolist()} is zero, non-finite or parallel to the first edge "
+            f"(tangent {first_tangent.tolist()}); give a vector perpendicular to it"
+        )
+    return projected / norm
+
+
+@numba.njit(cache=True)
+def _transport_along(tangents: np.ndarray, a1_first: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """Sequential space-parallel transport of a1 along the edges (compiled loop)."""
+    m = tangents.shape[0]
+    a1 = np.empty((m, 3))
+    a1[0] = a1_first
+    for j in range(1, m):
+        tf, tt, v = tangents[j - 1], tangents[j], a1[j - 1]
+        b = np.cross(tf, tt)
+        c = tf @ tt
+        a1[j] = c * v + np.cross(b, v) + b * (b @ v) / (1.0 + c)
+        a1[j] -= (a1[j] @ tt) * tt  # remove round-off drift off the tangent
+        a1[j] /= np.sqrt(a1[j] @ a1[j])
+    return a1
+
+
+def bishop_frames(points: np.ndarray, a1_first: np.ndarray) -> Frames:
+    """Space-parallel (Bishop) reference frames of a polyline; reference twist is zero."""
+    tangents = unit(edges(points))
+    a1 = _transport_along(np.ascontiguousarray(tangents), np.asarray(a1_first, dtype=float))
+    return Frames(tangents, a1, np.zeros(len(points) - 2))
+
+
+def reference_twist(tangents: np.ndarray, a1: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """Reference twist per interior vertex, updated incrementally from ``previous`` (rad).
+
+    rt_i = rt_i_old + angle(R(rt_i_old) P(t^{i-1} -> t^i) a1^{i-1}, a1^i) about t^i.
+    """
+    transported = parallel_transport(tangents[:-1], tangents[1:], a1[:-1])
+    rotated = rotate_about(transported, tangents[1:], previous)
+    return previous + signed_angle(rotated, a1[1:], tangents[1:])
+
+
+def transport_frames(frames: Frames, points: np.ndarray) -> Frames:
+    """Time-parallel transport of ``frames`` to a moved configuration ``points`` (Bergou 2010).
+
+    Each a1^j is transported from the old tangent to the new one; the reference twist is updated.
+    """
+    tangents = unit(edges(points))
+    a1 = parallel_transport(frames.tangents, tangents, frames.a1)
+    a1 = unit(a1 - np.sum(a1 * tangents, axis=-1, keepdims=True) * tangents)
+    return Frames(tangents, a1, reference_twist(tangents, a1, frames.reference_twist))
+
+
+def material_frames(frames: Frames, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Material directors (d1, d2) per edge: d1 = cos th a1 + sin th a2, d2 = -sin th a1 + cos th a2."""
+    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+    a1, a2 = frames.a1, frames.a2
+    return c * a1 + s * a2, -s * a1 + c * a2

@@ -1,0 +1,196 @@
+"""Parameter layout: blocks, p0, bounds, regularizer weights and the map to physical values (DESIGN 4).
+
+The optimized vector p is normalized and ordered along the strand, so that dc/dp is banded:
+edge 0, vertex 1, edge 1, vertex 2, ..., vertex n-2, edge n-2, with each element's entries in the
+order of BLOCKS; the single ``strand_stiffness`` of ``stiffness="strand"`` comes last.
+
+| block               | per             | variable                       | p0       | default box              |
+| rest_length         | edge            | u = lbar/l0 - 1                | 0        | [-0.05, 0.05]            |
+| rest_curvature      | interior vertex | (k0, k1), 2 entries            | kappa(q*)| p0 +- THETA lv_i / L     |
+| rest_twist          | interior vertex | mbar (rad)                     | m(q*)    | p0 +- PHI lv_i / L       |
+| stretch_stiffness   | edge            | alpha = k E                    | 1        | [1, 100]                 |
+| bend_stiffness      | interior vertex | beta = k E (and gamma = k G)   | 1        | [1, 100]                 |
+| twist_stiffness     | interior vertex | gamma = k G (couple_twist off) | 1        | [1, 100]                 |
+| strand_stiffness    | strand          | s: alpha, beta, gamma = s E,G  | 1        | [1, 100]                 |
+
+Every physical slot of every stencil is either a constant or coefficient * p[index] (one entry of p),
+which keeps dc/dp an exact, constant-structure sparse matrix.
+
+Stiffness modes: ``element`` (per edge / per vertex multipliers, the paper's method), ``strand`` (one
+multiplier s, supplement section V), ``fixed`` (rest shape only, the predecessor). With
+``couple_twist=True`` (default) the bend multiplier also scales gamma and ``twist_stiffness`` is not a
+separate block even when listed in ``optimize``.
+
+User bounds: ``bounds={block: (lower, upper)}`` in the block's own variable (scalars or arrays of the
+block's size; absolute values, so p0 must lie inside), plus ``curvature_budget`` (THETA, rad) and
+``twist_budget`` (PHI, rad) to resize the default curvature and twist boxes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+BLOCKS = ("rest_length", "rest_curvature", "rest_twist", "stretch_stiffness", "bend_stiffness",
+          "twist_stiffness")
+STRAND_BLOCK = "strand_stiffness"
+STIFFNESS_MODES = ("element", "strand", "fixed")
+BUDGETS = {"curvature_budget": 2.0, "twist_budget": 2.0}   # THETA, PHI in rad (DESIGN section 4)
+RELATIVE_LENGTH_BOX = 0.05
+STIFFNESS_BOX = (1.0, 100.0)
+_EDGE_BLOCKS = {"rest_length": 1, "stretch_stiffness": 1}
+_VERTEX_BLOCKS = {"rest_curvature": 2, "rest_twist": 1, "bend_stiffness": 1, "twist_stiffness": 1}
+_STIFFNESS_BLOCKS = ("stretch_stiffness", "bend_stiffness", "twist_stiffness")
+
+
+@dataclass
+class SlotMap:
+    """physical[k, s] = constant[k, s] + coefficient[k, s] * p[index[k, s]] where index >= 0."""
+
+    index: np.ndarray        # (stencils, slots) int, -1 = constant
+    coefficient: np.ndarray  # (stencils, slots)
+    constant: np.ndarray     # (stencils, slots)
+
+    def evaluate(self, p: np.ndarray) -> np.ndarray:
+        linked = self.index >= 0
+        out = self.constant.copy()
+        out[linked] += self.coefficient[linked] * p[self.index[linked]]
+        return out
+
+
+class ParameterLayout:
+    """Which parameters are optimized, where they sit in p, their p0, box and weights."""
+
+    def __init__(self, n_vertices: int, edge_lengths: np.ndarray, rest_curvature0: np.ndarray,
+                 rest_twist0: np.ndarray, youngs_modulus: float, shear_modulus: float,
+                 optimize=BLOCKS, stiffness="element", couple_twist=True, bounds=None, weights=None):
+        unknown = set(optimize) - set(BLOCKS)
+        if unknown:
+            raise ValueError(f"unknown parameter blocks {sorted(unknown)}; choose from {BLOCKS}")
+        if stiffness not in STIFFNESS_MODES:
+            raise ValueError(f"stiffness must be one of {STIFFNESS_MODES}, got {stiffness!r}")
+        self.stiffness, self.couple_twist = stiffness, couple_twist
+        n_edges, n_inner = n_vertices - 1, n_vertices - 2
+        active = [b for b in BLOCKS if b in optimize and
+                  not (b in _STIFFNESS_BLOCKS and stiffness != "element") and
+                  not (b == "twist_stiffness" and couple_twist)]
+        strand_level = stiffness == "strand" and any(b in optimize for b in _STIFFNESS_BLOCKS)
+
+        # ---- positions of each block's entries in p, along the strand ----
+        # order: [edge 0][vertex 1][edge 1] ... [vertex n-2][edge n-2], blocks in BLOCKS order
+        edge_widths = {b: w for b, w in _EDGE_BLOCKS.items() if b in active}
+        vertex_widths = {b: w for b, w in _VERTEX_BLOCKS.items() if b in active}
+        stride = sum(edge_widths.values()) + sum(vertex_widths.values())
+        self.blocks = {}
+        for widths, count, start in ((edge_widths, n_edges, 0),
+                                     (vertex_widths, n_inner, sum(edge_widths.values()))):
+            for b, w in widths.items():
+                first = start + stride * np.arange(count)
+                self.blocks[b] = (first[:, None] + np.arange(w)).ravel()
+                start += w
+        self.blocks = {b: self.blocks[b] for b in BLOCKS if b in self.blocks}
+        self.size = stride * n_edges - sum(vertex_widths.values()) * (n_edges - n_inner) + int(strand_level)
+        if strand_level:
+            self.blocks[STRAND_BLOCK] = np.array([self.size - 1])
+
+        # ---- p0, default box, weights ----
+        lengths = np.asarray(edge_lengths, dtype=float)
+        voronoi = 0.5 * (lengths[:-1] + lengths[1:])
+        share = voronoi / lengths.sum()
+        budgets = dict(BUDGETS)
+        bounds = dict(bounds or {})
+        for key in BUDGETS:
+            if key in bounds:
+                budgets[key] = float(bounds.pop(key))
+        defaults = {
+            "rest_length": (np.zeros(n_edges), -RELATIVE_LENGTH_BOX, RELATIVE_LENGTH_BOX),
+            "rest_curvature": (np.asarray(rest_curvature0, dtype=float).reshape(-1),
+                               -np.repeat(budgets["curvature_budget"] * share, 2),
+                               np.repeat(budgets["curvature_budget"] * share, 2)),
+            "rest_twist": (np.asarray(rest_twist0, dtype=float), -budgets["twist_budget"] * share,
+                           budgets["twist_budget"] * share),
+        }
+        self.p0, self.lower, self.upper = np.zeros(self.size), np.zeros(self.size), np.zeros(self.size)
+        self.weights = np.ones(self.size)
+        for b, ix in self.blocks.items():
+            if b in defaults:
+                p0, lo, hi = defaults[b]
+                self.p0[ix], self.lower[ix], self.upper[ix] = p0, p0 + lo, p0 + hi
+            else:
+                self.p0[ix], self.lower[ix], self.upper[ix] = 1.0, *STIFFNESS_BOX
+        self._apply_user(bounds, weights)
+
+        # ---- physical slot maps (layouts of energies.EDGE_PHYSICAL / VERTEX_PHYSICAL) ----
+        def slot(n, const, block=None, element_index=None, coefficient=1.0):
+            index = np.full(n, -1)
+            if block in self.blocks:
+                index = self.blocks[block][element_index]
+            elif strand_level and block in _STIFFNESS_BLOCKS:
+                index = np.full(n, self.size - 1)
+            coef = np.where(index >= 0, coefficient, 0.0)
+            constant = np.where(index >= 0, 0.0, const)
+            return index, coef, constant
+
+        E, G = youngs_modulus, shear_modulus
+        edges_all, inner = np.arange(n_edges), np.arange(n_inner)
+        kappa0 = np.asarray(rest_curvature0, dtype=float).reshape(n_inner, 2)
+        curvature_rows = lambda k: 2 * inner + k if "rest_curvature" in self.blocks else None  # noqa: E731
+        twist_block = "twist_stiffness" if "twist_stiffness" in self.blocks else (
+            "bend_stiffness" if couple_twist else "twist_stiffness")
+        edge_slots = [
+            slot(n_edges, 0.0, "rest_length", edges_all),
+            slot(n_edges, E, "stretch_stiffness", edges_all, E),
+        ]
+        vertex_slots = [
+            slot(n_inner, 0.0, "rest_length", inner),
+            slot(n_inner, 0.0, "rest_length", inner + 1),
+            slot(n_inner, kappa0[:, 0], "rest_curvature", curvature_rows(0)),
+            slot(n_inner, kappa0[:, 1], "rest_curvature", curvature_rows(1)),
+            slot(n_inner, rest_twist0, "rest_twist", inner),
+            slot(n_inner, E, "bend_stiffness", inner, E),
+            slot(n_inner, G, twist_block, inner, G),
+        ]
+        self.edge_map = SlotMap(*(np.stack(parts, axis=1) for parts in zip(*edge_slots)))
+        self.vertex_map = SlotMap(*(np.stack(parts, axis=1) for parts in zip(*vertex_slots)))
+
+    def _apply_user(self, bounds: dict, weights) -> None:
+        for name, value in (bounds or {}).items():
+            ix = self._block_index(name, "bounds")
+            lo, hi = value
+            self.lower[ix] = np.broadcast_to(np.asarray(lo, dtype=float), ix.shape)
+            self.upper[ix] = np.broadcast_to(np.asarray(hi, dtype=float), ix.shape)
+        for name, value in (weights or {}).items():
+            ix = self._block_index(name, "weights")
+            self.weights[ix] = np.broadcast_to(np.asarray(value, dtype=float), ix.shape)
+        self.validate()
+
+    def _block_index(self, name: str, what: str) -> np.ndarray:
+        if name not in self.blocks:
+            known = sorted(self.blocks) + (sorted(BUDGETS) if what == "bounds" else [])
+            raise ValueError(f"{what} given for {name!r}, which is not an optimized block here; "
+                             f"optimized blocks: {known}")
+        return self.blocks[name]
+
+    def validate(self) -> None:
+        """Raise a ValueError naming the block and entry of any inconsistent bound or weight."""
+        for name, ix in self.blocks.items():
+            lo, hi, p0, w = self.lower[ix], self.upper[ix], self.p0[ix], self.weights[ix]
+            checks = [
+                (~np.isfinite(lo) | ~np.isfinite(hi), "a non-finite bound"),
+                (lo > hi, "lower bound above upper bound"),
+                ((p0 < lo) | (p0 > hi), "p0 outside its bounds"),
+                (~np.isfinite(w) | (w < 0), "a negative or non-finite weight"),
+            ]
+            for bad, what in checks:
+                if np.any(bad):
+                    k = int(np.flatnonzero(bad)[0])
+                    raise ValueError(f"block {name!r}, entry {k}: {what} (lower {lo[k]:.6g}, "
+                                     f"upper {hi[k]:.6g}, p0 {p0[k]:.6g}, weight {w[k]:.6g})")
+
+    # ---- regularizer R(p) = 1/2 sum_j w_j (p_j - p0_j)^2 (DESIGN section 4) ----
+    def regularizer(self, p: np.ndarray) -> float:
+        d = p - self.p0
+        return 0.5 * float(np.sum(self.weights * d * d))
+
+    def regularizer_gradient(self, p: np.ndarray) -> np.ndarray:
+        return self.weights * (p - self.p0)

@@ -1,0 +1,223 @@
+"""The equilibrium problem of one strand (DESIGN sections 3, 4 and 10).
+
+    minimize R(p)  subject to  c(p) = D^-1 S f(q*, p) = 0,  lower <= p <= upper,
+
+f = -grad_q E(q*, p) + f_gravity, S selects the free DOFs, D scales each row by a characteristic
+force (dofs.row_scales), so |c|_inf is relative and unit-free. c is evaluated by the compiled stencil
+functions; dc/dp is assembled from their exact parameter Jacobians into a sparse matrix whose rows
+(free DOFs) and columns (parameters) are both in strand order, hence banded.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from . import dofs
+from .curvature import check_variant
+from .energies import TERMS
+from .frames import Frames, bishop_frames, default_director, project_director
+from .parameters import BLOCKS, ParameterLayout
+from .stencils import edge_stencil, vertex_stencil
+from .strand import Strand
+
+
+class Problem:
+    """Sag-free parameter problem of one strand.
+
+    gravity: m/s^2 vector. curvature: "4d" | "2d-average" | "2d-slerp".
+    optimize: parameter blocks to optimize (parameters module). stiffness: "element" | "strand" |
+    "fixed". couple_twist: gamma follows the bend multiplier. bounds, weights: parameters module.
+    energies: elastic terms included (all by default; a subset serves verification and experiments).
+    """
+
+    def __init__(self, strand: Strand, gravity=(0.0, 0.0, -9.81), curvature="4d", optimize=BLOCKS,
+                 stiffness="element", couple_twist=True, bounds=None, weights=None, energies=TERMS):
+        check_variant(curvature)
+        self.gravity = np.array(gravity, dtype=float).reshape(-1)
+        if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
+            raise ValueError(f"gravity must be a finite 3-vector, got {gravity!r}")
+        unknown = set(energies) - set(TERMS)
+        if unknown:
+            raise ValueError(f"unknown energy terms {sorted(unknown)}; choose from {TERMS}")
+        self.strand, self.curvature, self.energies = strand, curvature, tuple(energies)
+        n = self.n_vertices = strand.n_vertices
+        points = strand.points
+        first = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
+        a1 = (default_director(first, self.gravity) if strand.director is None
+              else project_director(first, strand.director))
+        self.frames: Frames = bishop_frames(points, a1)
+        self.q_star = dofs.interleave(points, strand.theta)
+        self._edge = edge_stencil("stretch" in energies)
+        self._vertex = vertex_stencil(curvature, tuple(t for t in ("bend", "twist") if t in energies))
+        self._edge_index = dofs.edge_stencil_index(n)
+        self._vertex_index = dofs.vertex_stencil_index(n)
+
+        # input geometry through the same compiled expressions as the energies, so that the strains,
+        # curvature and twist differences vanish exactly at p0
+        (l0,) = self._edge.geometry(self.q_star[self._edge_index])
+        kappa, twist = self._vertex.geometry(self.q_star[self._vertex_index], self._reference(self.frames))
+        self.edge_lengths, self.twist_star = l0, twist
+        r = strand.radius
+        self._edge_geometry = np.column_stack([l0, np.full(n - 1, r)])
+        self._vertex_geometry = np.column_stack([l0[:-1], l0[1:], np.full(n - 2, r), twist, kappa])
+        self.layout = ParameterLayout(n, l0, kappa[:, :2], twist, strand.youngs_modulus,
+                                      strand.shear_modulus, optimize, stiffness, couple_twist, bounds,
+                                      weights)
+
+        masses = 0.5 * strand.density * np.pi * r**2 * (np.r_[l0, 0.0] + np.r_[0.0, l0])
+        self.masses = masses
+        self.gravity_forces = dofs.gravity_forces(masses, self.gravity)
+        self.free = dofs.free_mask(n, strand.root)
+        self.row_scale = dofs.row_scales(masses, l0, strand.density, r, self.gravity)
+        self._jacobian_pattern = _JacobianPattern(self)
+
+    # ---- parameters ----
+    @property
+    def p0(self) -> np.ndarray:
+        return self.layout.p0.copy()
+
+    @property
+    def lower(self) -> np.ndarray:
+        return self.layout.lower.copy()
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self.layout.upper.copy()
+
+    @property
+    def blocks(self) -> dict[str, np.ndarray]:
+        return dict(self.layout.blocks)
+
+    @property
+    def n_parameters(self) -> int:
+        return self.layout.size
+
+    def objective(self, p) -> float:
+        """Regularizer R(p) = 1/2 sum_j w_j (p_j - p0_j)^2 (dimensionless)."""
+        return self.layout.regularizer(self._checked(p))
+
+    def objective_gradient(self, p) -> np.ndarray:
+        return self.layout.regularizer_gradient(self._checked(p))
+
+    def physical(self, p) -> dict[str, np.ndarray]:
+        """Physical parameters: rest lengths (m), rest curvatures (n-2, 2), rest twists (rad), moduli
+        alpha (per edge), beta and gamma (per interior vertex) in Pa."""
+        p = self._checked(p)
+        edge, vertex = self.layout.edge_map.evaluate(p), self.layout.vertex_map.evaluate(p)
+        return {
+            "rest_length": self.edge_lengths * (1.0 + edge[:, 0]),
+            "rest_curvature": vertex[:, 2:4],
+            "rest_twist": vertex[:, 4],
+            "stretch_modulus": edge[:, 1],
+            "bend_modulus": vertex[:, 5],
+            "twist_modulus": vertex[:, 6],
+        }
+
+    # ---- model evaluation ----
+    def _checked(self, p) -> np.ndarray:
+        p = np.asarray(p, dtype=float).reshape(-1)
+        if p.shape != (self.n_parameters,):
+            raise ValueError(f"p must have {self.n_parameters} entries, got {p.size}")
+        return p
+
+    def _state(self, q):
+        q = self.q_star if q is None else np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != self.q_star.shape:
+            raise ValueError(f"q must have {self.q_star.size} entries (4n-1), got {q.size}")
+        return q
+
+    @staticmethod
+    def _reference(frames: Frames) -> np.ndarray:
+        """(n-2, 13) stencil reference data: t^{i-1}, a1^{i-1}, t^i, a1^i, reference twist."""
+        t, a1 = frames.tangents, frames.a1
+        return np.column_stack([t[:-1], a1[:-1], t[1:], a1[1:], frames.reference_twist])
+
+    def _stencil_inputs(self, p, q, frames):
+        p, q = self._checked(p), self._state(q)
+        reference = self._reference(self.frames if frames is None else frames)
+        edge = (q[self._edge_index], self._edge_geometry, self.layout.edge_map.evaluate(p))
+        vertex = (q[self._vertex_index], reference, self._vertex_geometry,
+                  self.layout.vertex_map.evaluate(p))
+        return edge, vertex
+
+    def energy(self, p, q=None, frames: Frames | None = None) -> float:
+        """Elastic energy E(q, p), J; reference frames time-transported from those of q* (or
+        ``frames``) inside the expression."""
+        edge, vertex = self._stencil_inputs(p, q, frames)
+        return float(self._edge.energy(*edge)[0].sum() + self._vertex.energy(*vertex)[0].sum())
+
+    def elastic_gradient(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
+        """grad_q E(q, p) (4n-1): N on positions, N m on angles."""
+        edge, vertex = self._stencil_inputs(p, q, frames)
+        g = np.zeros(self.q_star.size)
+        np.add.at(g, self._edge_index, self._edge.gradient(*edge)[0])
+        np.add.at(g, self._vertex_index, self._vertex.gradient(*vertex)[0])
+        return g
+
+    def forces(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
+        """Generalized force f = -grad_q E(q, p) + f_gravity (4n-1), N and N m."""
+        return self.gravity_forces - self.elastic_gradient(p, q, frames)
+
+    def residual(self, p) -> np.ndarray:
+        """c(p) = D^-1 S f(q*, p), unit-free, free rows in strand order."""
+        return (self.forces(p) / self.row_scale)[self.free]
+
+    def jacobian(self, p) -> sp.csc_matrix:
+        """dc/dp as a sparse (free DOFs x parameters) matrix, both axes in strand order (banded)."""
+        edge, vertex = self._stencil_inputs(p, None, None)
+        return self._jacobian_pattern.assemble(self._edge.gradient(*edge)[1],
+                                               self._vertex.gradient(*vertex)[1])
+
+    def hessian(self, p, q=None, frames: Frames | None = None) -> sp.csr_matrix:
+        """d2E/dq2 (4n-1 square, sparse, half bandwidth 10)."""
+        edge, vertex = self._stencil_inputs(p, q, frames)
+        blocks = [(self._edge_index, self._edge.hessian(*edge)[0]),
+                  (self._vertex_index, self._vertex.hessian(*vertex)[0])]
+        rows = np.concatenate([np.repeat(ix, ix.shape[1], axis=1).ravel() for ix, _ in blocks])
+        cols = np.concatenate([np.tile(ix, (1, ix.shape[1])).ravel() for ix, _ in blocks])
+        values = np.concatenate([h.ravel() for _, h in blocks])
+        size = self.q_star.size
+        return sp.csr_matrix((values, (rows, cols)), shape=(size, size))
+
+    def stability(self, p) -> float:
+        """Smallest eigenvalue of the free-DOF energy Hessian at q* (DESIGN 7); > 0: stable rest."""
+        h = self.hessian(p)[self.free][:, self.free]
+        band, size = 10, h.shape[0]
+        banded = np.zeros((band + 1, size))
+        for k in range(band + 1):
+            banded[k, : size - k] = h.diagonal(-k)
+        return float(scipy.linalg.eigvals_banded(banded, lower=True, select="i", select_range=(0, 0))[0])
+
+
+class _JacobianPattern:
+    """Constant sparsity of dc/dp, with the scatter that sums stencil contributions into it."""
+
+    def __init__(self, problem: Problem):
+        layout = problem.layout
+        free_row = np.full(problem.q_star.size, -1)
+        free_row[problem.free] = np.arange(problem.free.sum())
+        parts = []
+        for dof_index, slots in ((problem._edge_index, layout.edge_map),
+                                 (problem._vertex_index, layout.vertex_map)):
+            stencils, width = dof_index.shape
+            rows = np.broadcast_to(free_row[dof_index][:, :, None], (stencils, width, slots.index.shape[1]))
+            cols = np.broadcast_to(slots.index[:, None, :], rows.shape)
+            scale = (-slots.coefficient[:, None, :] / problem.row_scale[dof_index][:, :, None])
+            keep = (rows >= 0) & (cols >= 0)
+            parts.append((keep, rows[keep], cols[keep], np.broadcast_to(scale, rows.shape)[keep]))
+        self._keep = [k for k, *_ in parts]
+        self._scale = np.concatenate([s for *_, s in parts])
+        rows = np.concatenate([r for _, r, _, _ in parts])
+        cols = np.concatenate([c for _, _, c, _ in parts])
+        self.shape = (int(problem.free.sum()), layout.size)
+        keys = cols.astype(np.int64) * self.shape[0] + rows
+        unique, self._target = np.unique(keys, return_inverse=True)
+        self._indices = (unique % self.shape[0]).astype(np.int32)
+        self._indptr = np.searchsorted(unique // self.shape[0], np.arange(self.shape[1] + 1)).astype(np.int32)
+
+    def assemble(self, edge_jacobians: np.ndarray, vertex_jacobians: np.ndarray) -> sp.csc_matrix:
+        """Sum -coef * d(grad)/d(physical) / D into the CSC values (column-major order is sorted)."""
+        entries = np.concatenate([edge_jacobians[self._keep[0]], vertex_jacobians[self._keep[1]]])
+        values = np.bincount(self._target, weights=entries * self._scale, minlength=len(self._indices))
+        return sp.csc_matrix((values, self._indices, self._indptr), shape=self.shape)

@@ -1,0 +1,116 @@
+"""The input strand: groomed polyline, material, frames and root condition (DESIGN sections 3 and 10)."""
+from __future__ import annotations
+
+import numpy as np
+
+#: Root conditions: which leading DOFs are prescribed (DESIGN section 3).
+ROOTS = ("clamped", "pinned")
+#: Largest turning angle accepted at a vertex (degrees). The curvature binormal 2 tan(phi/2) blows up
+#: at 180 degrees; a groom with a sharper kink is almost surely a broken polyline.
+MAX_TURNING_ANGLE_DEG = 170.0
+
+
+class Strand:
+    """One groomed strand, SI units.
+
+    points: (n, 3) vertex positions in m, n >= 3, vertex 0 is the root.
+    radius (m), youngs_modulus E (Pa), shear_modulus G (Pa), density (kg/m^3): positive, finite.
+    theta: (n-1,) material angles of the edges (rad) relative to the Bishop reference frame;
+        None = 0 (untwisted input). th = pi on alternate edges gives "flipped frames".
+    root: "clamped" (x_0, x_1, th_0 prescribed) or "pinned" (x_0 prescribed).
+    director: reference director a1 of the first edge; projected perpendicular to the first edge.
+        None = "up" (minus gravity) projected, chosen by the Problem that knows gravity.
+    """
+
+    def __init__(self, points, radius=5e-5, youngs_modulus=1e9, shear_modulus=4e8, density=1300.0,
+                 theta=None, root="clamped", director=None):
+        self.points = _validated_points(points)
+        n = len(self.points)
+        self.radius = _positive("radius", radius)
+        self.youngs_modulus = _positive("youngs_modulus", youngs_modulus)
+        self.shear_modulus = _positive("shear_modulus", shear_modulus)
+        self.density = _positive("density", density)
+        if root not in ROOTS:
+            raise ValueError(f"root must be one of {ROOTS}, got {root!r}")
+        self.root = root
+        if theta is None:
+            self.theta = np.zeros(n - 1)
+        else:
+            self.theta = np.array(theta, dtype=float).reshape(-1)
+            if self.theta.shape != (n - 1,):
+                raise ValueError(f"theta must have one angle per edge ({n - 1}), got {self.theta.size}")
+            bad = np.flatnonzero(~np.isfinite(self.theta))
+            if bad.size:
+                raise ValueError(f"theta of edge {bad[0]} is not finite ({self.theta[bad[0]]})")
+        if director is None:
+            self.director = None
+        else:
+            self.director = np.array(director, dtype=float).reshape(-1)
+            if self.director.shape != (3,) or not np.all(np.isfinite(self.director)):
+                raise ValueError(f"director must be a finite 3-vector, got {director!r}")
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.points)
+
+    @property
+    def edge_lengths(self) -> np.ndarray:
+        """Input edge lengths l0_j, m."""
+        return np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+
+    @property
+    def length(self) -> float:
+        """Strand length L, m."""
+        return float(self.edge_lengths.sum())
+
+    @property
+    def vertex_masses(self) -> np.ndarray:
+        """Lumped masses m_i = rho pi r^2 (half of each adjacent input edge), kg."""
+        half = 0.5 * self.density * np.pi * self.radius**2 * self.edge_lengths
+        masses = np.zeros(self.n_vertices)
+        masses[:-1] += half
+        masses[1:] += half
+        return masses
+
+    def __repr__(self) -> str:
+        return (f"Strand(n={self.n_vertices}, L={self.length:.4g} m, r={self.radius:.3g} m, "
+                f"E={self.youngs_modulus:.3g} Pa, G={self.shear_modulus:.3g} Pa, root={self.root!r})")
+
+
+def _positive(name: str, value) -> float:
+    v = float(value)
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be positive and finite, got {value!r}")
+    return v
+
+
+def _validated_points(points) -> np.ndarray:
+    """Points as a float (n, 3) array; errors name the offending vertex or edge."""
+    try:
+        x = np.array(points, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"points must be an (n, 3) array of numbers: {exc}") from None
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"points must have shape (n, 3), got {x.shape}")
+    if len(x) < 3:
+        raise ValueError(f"a strand needs at least 3 vertices, got {len(x)}")
+    bad = np.flatnonzero(~np.all(np.isfinite(x), axis=1))
+    if bad.size:
+        raise ValueError(f"vertex {bad[0]} has a non-finite coordinate {x[bad[0]].tolist()}")
+    e = np.diff(x, axis=0)
+    lengths = np.linalg.norm(e, axis=1)
+    scale = max(float(np.abs(x).max()), float(lengths.max()))
+    short = np.flatnonzero(lengths <= 1e-12 * scale)
+    if short.size:
+        j = short[0]
+        raise ValueError(f"edge {j} (vertices {j} and {j + 1}) has zero length: duplicate vertex "
+                         f"{x[j].tolist()}; remove the duplicate")
+    t = e / lengths[:, None]
+    cos_turn = np.sum(t[:-1] * t[1:], axis=1)
+    kinked = np.flatnonzero(cos_turn < np.cos(np.radians(MAX_TURNING_ANGLE_DEG)))
+    if kinked.size:
+        i = kinked[0] + 1
+        angle = np.degrees(np.arccos(np.clip(cos_turn[i - 1], -1, 1)))
+        raise ValueError(f"vertex {i} turns by {angle:.1f} degrees (more than "
+                         f"{MAX_TURNING_ANGLE_DEG:.0f}): the polyline folds back on itself there")
+    return x

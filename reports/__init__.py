@@ -1,0 +1,1 @@
+"""sagfree.reports (see DESIGN section 2)."""

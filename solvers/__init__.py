@@ -1,0 +1,1 @@
+"""sagfree.solvers (see DESIGN section 2)."""

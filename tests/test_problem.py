@@ -1,0 +1,220 @@
+"""The equilibrium problem: residual, forces, Jacobian, parameters (DESIGN sections 3, 4, 10)."""
+import numpy as np
+import pytest
+
+import sagfree
+from sagfree.formulation import dofs
+from sagfree.formulation.curvature import VARIANTS
+from sagfree.formulation.frames import transport_frames
+from sagfree.formulation.verification import (gradient_error, jacobian_error, perturbed_parameters,
+                                              verification_strands)
+
+SCENES = {
+    "horizontal": lambda: sagfree.scenes.horizontal(n=30),
+    "flipped": lambda: sagfree.scenes.flipped(n=30),
+    "helix": lambda: sagfree.scenes.helix(n=30),
+    "wavy": lambda: sagfree.scenes.wavy(n=30),
+    "curly": lambda: sagfree.scenes.curly(n=40),
+}
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("scene", SCENES)
+def test_residual_at_p0_is_exactly_scaled_gravity(scene, variant):
+    pb = sagfree.Problem(SCENES[scene](), curvature=variant)
+    gravity = (pb.gravity_forces / pb.row_scale)[pb.free]
+    assert np.array_equal(pb.residual(pb.p0), gravity)
+    # every free vertex carries exactly its own weight: -1 on z rows
+    z_rows = (4 * np.arange(pb.n_vertices) + 2)[pb.free[4 * np.arange(pb.n_vertices) + 2]]
+    assert np.allclose(pb.residual(pb.p0)[np.searchsorted(np.flatnonzero(pb.free), z_rows)], -1, atol=1e-15)
+
+
+def test_groom_residual_at_p0_is_gravity():
+    for strand in sagfree.scenes.groom(20, 40, seed=3):
+        pb = sagfree.Problem(strand)
+        assert np.array_equal(pb.residual(pb.p0), (pb.gravity_forces / pb.row_scale)[pb.free])
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_unloaded_strand_at_p0_has_zero_force(variant):
+    for strand in verification_strands(seed=1).values():
+        pb = sagfree.Problem(strand, gravity=(0, 0, 0), curvature=variant)
+        assert np.array_equal(pb.forces(pb.p0), np.zeros(pb.q_star.size))
+        assert np.array_equal(pb.residual(pb.p0), np.zeros(pb.free.sum()))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_forces_are_negative_energy_gradient(variant, rng):
+    for strand in verification_strands(seed=2).values():
+        pb = sagfree.Problem(strand, curvature=variant)
+        p = perturbed_parameters(pb, rng)
+        assert gradient_error(pb, p) < 1e-7
+        q = pb.q_star + 1e-3 * rng.standard_normal(pb.q_star.size)
+        frames = transport_frames(pb.frames, dofs.positions(q))
+        assert gradient_error(pb, p, q, frames) < 1e-7  # nonzero reference twist
+        assert gradient_error(pb, p, q) < 1e-7          # frames transported from q* in-expression
+        assert np.allclose(pb.forces(p, q), pb.gravity_forces - pb.elastic_gradient(p, q))
+
+
+def test_gradient_check_detects_a_wrong_gradient(rng):
+    pb = sagfree.Problem(sagfree.scenes.helix(n=12))
+    p = perturbed_parameters(pb, rng)
+    true_gradient = pb.elastic_gradient
+    pb.elastic_gradient = lambda *a: 1.01 * true_gradient(*a)
+    assert gradient_error(pb, p) > 1e-3
+
+
+@pytest.mark.parametrize("stiffness, couple", [("element", True), ("element", False), ("strand", True),
+                                               ("fixed", True)])
+def test_jacobian_matches_finite_differences_for_every_block(stiffness, couple, rng):
+    pb = sagfree.Problem(sagfree.scenes.curly(n=20), stiffness=stiffness, couple_twist=couple)
+    p = perturbed_parameters(pb, rng)
+    for block in pb.blocks:
+        assert jacobian_error(pb, p, block) < 1e-7, block
+
+
+def test_energies_are_invariant_under_rigid_rotation(rng):
+    axis = rng.standard_normal(3)
+    axis /= np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + np.sin(1.1) * k + (1 - np.cos(1.1)) * k @ k
+    base = verification_strands(seed=4)["twisted"]
+    rotated = sagfree.Strand(base.points @ R.T, theta=base.theta)
+    for variant in VARIANTS:
+        a = sagfree.Problem(base, curvature=variant)
+        b = sagfree.Problem(rotated, gravity=R @ np.array([0, 0, -9.81]), curvature=variant)
+        assert np.allclose(a.p0, b.p0, atol=1e-12)
+        p = perturbed_parameters(a, rng)
+        q = a.q_star + 1e-3 * rng.standard_normal(a.q_star.size)
+        qb = q.copy()
+        qb[dofs.position_index(a.n_vertices)] = dofs.positions(q) @ R.T
+        assert b.energy(p, qb) == pytest.approx(a.energy(p, q), rel=1e-10)
+        fa, fb = a.elastic_gradient(p, q), b.elastic_gradient(p, qb)
+        pos = dofs.position_index(a.n_vertices)
+        assert np.allclose(fb[pos], fa[pos] @ R.T, rtol=1e-8, atol=1e-10 * np.abs(fa).max())
+        th = dofs.theta_index(a.n_vertices)
+        assert np.allclose(fb[th], fa[th], rtol=1e-8, atol=1e-10 * np.abs(fa).max())
+
+
+def bent(problem):
+    """The strand of ``problem`` bent down into a quarter-ish circular arc, angles unchanged."""
+    q = problem.q_star.copy()
+    x = dofs.positions(q)
+    s = x[:, 0]
+    radius = 0.08
+    q[dofs.position_index(len(x))] = np.column_stack(
+        [radius * np.sin(s / radius), 0 * s, radius * (np.cos(s / radius) - 1)])
+    return q
+
+
+def test_flipped_frames_2d_average_has_no_bending_while_4d_matches_unflipped():
+    """Supplement Fig. 2: (b) 2d-average offers no bending resistance with flipped frames,
+    (d) 4d behaves as without the flips."""
+    flipped, plain = sagfree.scenes.flipped(), sagfree.scenes.horizontal()
+    avg = sagfree.Problem(flipped, curvature="2d-average", energies=("bend",))
+    q = bent(avg)
+    assert avg.energy(avg.p0, q) < 1e-25
+    assert np.abs(avg.elastic_gradient(avg.p0, q)).max() < 1e-20
+    avg_plain = sagfree.Problem(plain, curvature="2d-average", energies=("bend",))
+    assert avg_plain.energy(avg_plain.p0, bent(avg_plain)) > 1e-9  # it does bend without flips
+
+    four, four_plain = (sagfree.Problem(s, curvature="4d", energies=("bend",)) for s in (flipped, plain))
+    e, e_plain = four.energy(four.p0, q), four_plain.energy(four_plain.p0, bent(four_plain))
+    assert e > 1e-9 and e == pytest.approx(e_plain, rel=1e-12)
+    assert np.allclose(four.elastic_gradient(four.p0, q), four_plain.elastic_gradient(four_plain.p0, q),
+                       rtol=1e-10, atol=1e-12 * e)
+    slerp = sagfree.Problem(flipped, curvature="2d-slerp", energies=("bend",))
+    assert slerp.energy(slerp.p0, q) == pytest.approx(e_plain, rel=1e-12)  # unit frames bend too
+
+
+def test_variants_agree_when_frames_are_not_flipped(rng):
+    strand = sagfree.scenes.helix(n=20)
+    energies = []
+    for variant in VARIANTS:
+        pb = sagfree.Problem(strand, curvature=variant)
+        q = pb.q_star.copy()
+        q[dofs.position_index(pb.n_vertices)] *= 1.001  # a stretched, bent state, untwisted
+        energies.append(pb.energy(pb.p0, q))
+    assert np.allclose(energies, energies[0], rtol=1e-4)
+
+
+def test_parameter_layout_and_physical_values():
+    strand = sagfree.scenes.horizontal(n=10)
+    pb = sagfree.Problem(strand)
+    assert set(pb.blocks) == {"rest_length", "rest_curvature", "rest_twist", "stretch_stiffness",
+                              "bend_stiffness"}  # twist follows bend by default
+    assert sorted(np.concatenate(list(pb.blocks.values())).tolist()) == list(range(pb.n_parameters))
+    for ix in pb.blocks.values():
+        assert np.all(np.diff(ix) > 0)  # strand order
+    phys = pb.physical(pb.p0)
+    assert np.allclose(phys["rest_length"], strand.edge_lengths)
+    assert np.allclose(phys["bend_modulus"], 1e9) and np.allclose(phys["twist_modulus"], 4e8)
+    p = pb.p0
+    p[pb.blocks["bend_stiffness"]] = 3.0
+    p[pb.blocks["rest_length"]] = 0.01
+    phys = pb.physical(p)
+    assert np.allclose(phys["twist_modulus"], 1.2e9) and np.allclose(phys["bend_modulus"], 3e9)
+    assert np.allclose(phys["rest_length"], 1.01 * strand.edge_lengths)
+    # default boxes (DESIGN section 4)
+    lv = 0.5 * (strand.edge_lengths[:-1] + strand.edge_lengths[1:])
+    width = pb.upper[pb.blocks["rest_curvature"]] - pb.lower[pb.blocks["rest_curvature"]]
+    assert np.allclose(width, 2 * 2.0 * np.repeat(lv, 2) / strand.length)
+    assert np.allclose(pb.lower[pb.blocks["stretch_stiffness"]], 1)
+    assert np.allclose(pb.upper[pb.blocks["stretch_stiffness"]], 100)
+    assert pb.objective(pb.p0) == 0.0
+
+
+def test_stiffness_modes():
+    strand = sagfree.scenes.horizontal(n=10)
+    strand_mode = sagfree.Problem(strand, stiffness="strand")
+    assert strand_mode.blocks["strand_stiffness"].tolist() == [strand_mode.n_parameters - 1]
+    p = strand_mode.p0
+    p[-1] = 4.0
+    phys = strand_mode.physical(p)
+    assert np.allclose(phys["stretch_modulus"], 4e9) and np.allclose(phys["twist_modulus"], 1.6e9)
+    fixed = sagfree.Problem(strand, stiffness="fixed")
+    assert set(fixed.blocks) == {"rest_length", "rest_curvature", "rest_twist"}
+    uncoupled = sagfree.Problem(strand, couple_twist=False)
+    assert "twist_stiffness" in uncoupled.blocks
+
+
+def test_jacobian_is_banded_with_width_independent_of_n():
+    widths = []
+    for n in (20, 40, 80):
+        pb = sagfree.Problem(sagfree.scenes.helix(n=n))
+        JtJ = (pb.jacobian(pb.p0).T @ pb.jacobian(pb.p0)).tocoo()
+        widths.append(np.abs(JtJ.row - JtJ.col).max())
+    assert widths[0] == widths[1] == widths[2] and widths[0] < 30
+
+
+@pytest.mark.parametrize("bounds, message", [
+    ({"rest_length": (0.1, -0.1)}, "lower bound above upper bound"),
+    ({"stretch_stiffness": (2.0, 10.0)}, "p0 outside its bounds"),
+    ({"rest_volume": (0, 1)}, "not an optimized block"),
+])
+def test_inconsistent_bounds_are_clear_errors(bounds, message):
+    with pytest.raises(ValueError, match=message):
+        sagfree.Problem(sagfree.scenes.horizontal(n=8), bounds=bounds)
+
+
+def test_user_bounds_weights_and_budgets():
+    pb = sagfree.Problem(sagfree.scenes.horizontal(n=8), bounds={"rest_length": (-0.01, 0.02),
+                         "curvature_budget": 1.0}, weights={"bend_stiffness": 5.0})
+    assert np.all(pb.upper[pb.blocks["rest_length"]] == 0.02)
+    default = sagfree.Problem(sagfree.scenes.horizontal(n=8))
+    ix = pb.blocks["rest_curvature"]
+    assert np.allclose(pb.upper[ix] - pb.lower[ix], 0.5 * (default.upper[ix] - default.lower[ix]))
+    p = pb.p0
+    p[pb.blocks["bend_stiffness"][0]] = 2.0
+    assert pb.objective(p) == pytest.approx(0.5 * 5.0)
+    with pytest.raises(ValueError, match="unknown parameter blocks"):
+        sagfree.Problem(sagfree.scenes.horizontal(n=8), optimize=("rest_lenght",))
+    with pytest.raises(ValueError, match="unknown curvature variant"):
+        sagfree.Problem(sagfree.scenes.horizontal(n=8), curvature="3d")
+
+
+def test_stability_of_the_straight_rest_state():
+    pb = sagfree.Problem(sagfree.scenes.horizontal(n=12))
+    assert pb.stability(pb.p0) > 0
+    dense = pb.hessian(pb.p0)[pb.free][:, pb.free].toarray()
+    assert pb.stability(pb.p0) == pytest.approx(np.linalg.eigvalsh(dense)[0], rel=1e-6)

@@ -1,0 +1,44 @@
+"""Strand validation: every bad input names what is wrong and where."""
+import numpy as np
+import pytest
+
+import sagfree
+
+
+def line(n=5):
+    x = np.linspace(0, 0.1, n)
+    return np.column_stack([x, 0 * x, 0 * x])
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda p: p[:2], "at least 3 vertices"),
+    (lambda p: np.where(np.arange(5)[:, None] == 3, np.nan, p), "vertex 3 has a non-finite"),
+    (lambda p: np.insert(p, 2, p[2], axis=0), "edge 2 (vertices 2 and 3) has zero length"),
+    (lambda p: np.vstack([p[:3], p[1:2] + [1e-4, 1e-6, 0]]), "vertex 2 turns by"),
+    (lambda p: p[:, :2], "shape (n, 3)"),
+])
+def test_bad_points_are_named(edit, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        sagfree.Strand(edit(line()))
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(radius=0), "radius"), (dict(radius=-1e-5), "radius"), (dict(youngs_modulus=np.inf), "youngs"),
+    (dict(shear_modulus=0), "shear"), (dict(density=-1), "density"), (dict(root="free"), "root"),
+    (dict(theta=np.zeros(3)), "one angle per edge"), (dict(theta=[0, 0, np.nan, 0]), "theta of edge 2"),
+    (dict(director=[1, 2]), "director"),
+])
+def test_bad_material_and_options(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        sagfree.Strand(line(), **kwargs)
+
+
+def test_director_parallel_to_first_edge_is_an_error():
+    with pytest.raises(ValueError, match="parallel to the first edge"):
+        sagfree.Problem(sagfree.Strand(line(), director=[2.0, 0, 0]))
+
+
+def test_lumped_masses_sum_to_strand_mass():
+    s = sagfree.Strand(line(7), radius=3e-5, density=1100.0)
+    assert s.vertex_masses.sum() == pytest.approx(1100.0 * np.pi * 3e-5**2 * 0.1, rel=1e-12)
+    assert s.length == pytest.approx(0.1)
