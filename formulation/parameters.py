@@ -194,3 +194,16 @@ class ParameterLayout:
 
     def regularizer_gradient(self, p: np.ndarray) -> np.ndarray:
         return self.weights * (p - self.p0)
+
+    def locate(self, index: int) -> tuple[str, str]:
+        """(block, element) of entry ``index`` of p, e.g. ("bend_stiffness", "vertex 3")."""
+        for block, ix in self.blocks.items():
+            hits = np.flatnonzero(ix == index)
+            if hits.size:
+                k = int(hits[0])
+                if block == STRAND_BLOCK:
+                    return block, "strand"
+                if block in _EDGE_BLOCKS:
+                    return block, f"edge {k}"
+                return block, f"vertex {k // _VERTEX_BLOCKS[block] + 1}"
+        raise IndexError(f"p has no entry {index}")

@@ -41,6 +41,8 @@ class Problem:
         if unknown:
             raise ValueError(f"unknown energy terms {sorted(unknown)}; choose from {TERMS}")
         self.strand, self.curvature, self.energies = strand, curvature, tuple(energies)
+        self.options = dict(gravity=gravity, curvature=curvature, optimize=optimize, stiffness=stiffness,
+                            couple_twist=couple_twist, bounds=bounds, weights=weights, energies=energies)
         n = self.n_vertices = strand.n_vertices
         points = strand.points
         first = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
@@ -71,6 +73,10 @@ class Problem:
         self.free = dofs.free_mask(n, strand.root)
         self.row_scale = dofs.row_scales(masses, l0, strand.density, r, self.gravity)
         self._jacobian_pattern = _JacobianPattern(self)
+
+    def with_options(self, **changes) -> "Problem":
+        """The same strand's Problem with some constructor options changed."""
+        return Problem(self.strand, **{**self.options, **changes})
 
     # ---- parameters ----
     @property

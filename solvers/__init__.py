@@ -1,1 +1,6 @@
-"""sagfree.solvers (see DESIGN section 2)."""
+"""Our solver (augmented Lagrangian + MPRGP + active-set Cholesky), the Result type and the batch runner."""
+from .batch import optimize, solve_strand
+from .registry import SOLVERS, solve
+from .result import Result
+
+__all__ = ["solve", "optimize", "solve_strand", "Result", "SOLVERS"]

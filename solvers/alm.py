@@ -1,0 +1,244 @@
+"""Our solver ("asc"): augmented Lagrangian + Gauss-Newton + MPRGP + active-set Cholesky (DESIGN 5).
+
+    minimize R(p) = 1/2 sum w_j (p_j - p0_j)^2   s.t.   c(p) = 0,   lower <= p <= upper.
+
+Outer loop (augmented Lagrangian, PERMON SMALXE-style accounting):
+    L(p, lam) = R(p) + lam^T c(p) + mu/2 |c(p)|^2,
+    after each inner solve lam <- lam + mu c; mu <- 10 mu when |c|_inf did not fall below
+    a quarter of its previous value (the constraint stalls).
+Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu J^T J; each step
+    solves the box QP  min g^T d + 1/2 d^T H d,  lower - p <= d <= upper - p  by MPRGP, preconditioned
+    by the active-set Cholesky, then an Armijo backtracking line search on L keeps p feasible.
+Scale: a rest-length entry moves c about 1e7 times more than a stiffness multiplier (the strain that
+    holds gravity is ~1e-8), so gradients are compared in the scaled projected gradient
+        pi(p, g) = ||P(p - g / h) - p||_inf,   h_j = w_j + ||J_{:,j}||^2,
+    a Newton-like step length in the units of p that is the same for every block. The inner loop
+    stops when pi of the gradient of L is below omega_k (tightening by 10 per outer iteration down to
+    ``optimality_tol``) or when the model predicts no decrease above the rounding of L.
+Converged: |c|_inf <= tol and pi of the gradient of the Lagrangian R + lam^T c (updated lam)
+    is <= optimality_tol: a KKT point of the bound-constrained problem.
+Infeasible: once mu has grown 10^4-fold, the best box-constrained Gauss-Newton step for |c|^2 alone
+    reduces |c| by less than 1%: p is a stationary point of the constraint violation inside the box.
+    The message names the bounds that bind (the blocks and vertices whose relaxation would reduce
+    |c|), so a user knows what to relax.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
+
+from sagfree.formulation.problem import Problem
+
+from .banded import bordered_band
+from .mprgp import solve_box_qp
+from .result import Result, make_result
+
+ARMIJO = 1e-4
+ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
+
+
+def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
+    """||P(p - gradient / scale) - p||_inf: zero exactly at a KKT point of a box-constrained problem."""
+    return float(np.abs(np.clip(p - gradient / scale, lower, upper) - p).max(initial=0.0))
+
+
+def gradient_scale(weights: np.ndarray, J: sp.csc_matrix) -> np.ndarray:
+    """h_j = w_j + ||J_{:,j}||^2, the diagonal of the Gauss-Newton Hessian at mu = 1."""
+    return weights + np.asarray(J.multiply(J).sum(axis=0)).ravel() + 1e-300
+
+
+def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -> np.ndarray:
+    """lam minimizing the scaled Lagrangian gradient on the free variables,
+    ||(grad R + J^T lam)_F / sqrt(h_F)||_2 (normal equations, sparse LU; a feasible p's multipliers)."""
+    free = (p > lower) & (p < upper)
+    Js = (J @ sp.diags(1.0 / np.sqrt(scale)))[:, free].tocsr()
+    rs = (regularizer_gradient / np.sqrt(scale))[free]
+    normal = (Js @ Js.T).tocsc() + sp.identity(J.shape[0], format="csc") * 1e-14
+    try:
+        return -sp.linalg.splu(normal).solve(Js @ rs)
+    except RuntimeError:  # singular: keep the caller's multipliers
+        return np.full(J.shape[0], np.nan)
+
+
+class _Model:
+    """c, J and the merit function at the current p, evaluated once per point."""
+
+    def __init__(self, problem: Problem):
+        self.problem = problem
+        self.w, self.p0 = problem.layout.weights, problem.layout.p0
+        self.border = 1 if "strand_stiffness" in problem.blocks else 0
+
+    def merit(self, p, c, lam, mu) -> float:
+        d = p - self.p0
+        return 0.5 * float(np.sum(self.w * d * d)) + float(lam @ c) + 0.5 * mu * float(c @ c)
+
+    def merit_scale(self, p, c, lam, mu) -> float:
+        """Sum of the magnitudes of the merit's terms: the size its rounding error scales with."""
+        d = p - self.p0
+        return 0.5 * float(np.sum(self.w * d * d)) + float(np.abs(lam) @ np.abs(c)) + 0.5 * mu * float(c @ c)
+
+    def hessian(self, J: sp.csc_matrix, mu: float):
+        """Bordered band of diag(w) + mu J^T J. A 1e-12 shift (in the normalized units of p, far
+        below any weight) keeps it definite when a weight is zero and its column vanishes; it must
+        not scale with the largest diagonal entry, which the stiff rest-length columns make ~1e16,
+        or it would erase the smooth curvature modes that hold a cantilever up."""
+        H = (mu * (J.T @ J)).tocsr() + sp.diags(self.w + 1e-12)
+        return bordered_band(H, self.border)
+
+
+def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
+              max_gauss_newton: int = 600, mu0: float = 10.0, mu_growth: float = 10.0,
+              preconditioner: str = "cholesky", qp_rtol: float = 1e-10, start: str = "auto",
+              p_start=None) -> Result:
+    """Solve ``problem`` with our augmented Lagrangian solver; see the module docstring.
+
+    tol: |c|_inf target (unit-free, relative to each DOF's weight). optimality_tol: projected gradient
+    of the Lagrangian. preconditioner: "cholesky" (active-set Cholesky), "jacobi" or "none".
+    start: "auto" starts per-element stiffness from the strand-stiffness solution (see
+    _strand_mode_start), "p0" from p0; p_start overrides both.
+    """
+    clock = time.perf_counter()
+    lower, upper = problem.layout.lower, problem.layout.upper
+    model = _Model(problem)
+    counts = dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, factorizations=0,
+                  line_search=0)
+    if p_start is None:
+        p_start = problem.p0
+        if start == "auto" and problem.layout.stiffness == "element" and any(
+                b in problem.blocks for b in ("stretch_stiffness", "bend_stiffness", "twist_stiffness")):
+            p_start = _strand_mode_start(problem, counts, tol=tol, optimality_tol=optimality_tol,
+                                         preconditioner=preconditioner, qp_rtol=qp_rtol)
+    p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
+    lam = np.zeros(int(problem.free.sum()))
+    mu, omega = mu0, 1e-2
+    c, J = problem.residual(p), problem.jacobian(p)
+    scale = gradient_scale(model.w, J)
+    history = [float(np.abs(c).max(initial=0.0))]
+    previous_violation = np.inf
+    at_lower, at_upper = p <= lower, p >= upper
+
+    def finish(status, message):
+        return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock,
+                           history)
+
+    while counts["outer"] < max_outer:
+        counts["outer"] += 1
+        # ---- inner: Gauss-Newton on the augmented Lagrangian ----
+        while True:
+            gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
+            if scaled_projected_gradient(p, gradient, scale, lower, upper) <= omega:
+                break
+            if counts["gauss_newton"] >= max_gauss_newton:
+                return finish("max_iterations", f"stopped after {max_gauss_newton} Gauss-Newton steps "
+                              f"with |c|_inf = {history[-1]:.3g}; raise max_gauss_newton")
+            counts["gauss_newton"] += 1
+            # warm start: the bounds active in the previous step's QP are active again
+            d_lower, d_upper = lower - p, upper - p
+            start_step = np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0))
+            qp = solve_box_qp(model.hessian(J, mu), -gradient, d_lower, d_upper, x0=start_step,
+                              rtol=qp_rtol, preconditioner=preconditioner)
+            at_lower, at_upper = qp.x <= d_lower, qp.x >= d_upper
+            for key in ("cg", "expansion", "proportioning", "factorizations"):
+                counts[key] += getattr(qp, key)
+            if qp.status not in ("converged", "max_iterations"):
+                return finish("failed", f"the Gauss-Newton QP failed ({qp.status}) at step "
+                              f"{counts['gauss_newton']}")
+            step, slope = qp.x, float(gradient @ qp.x)
+            merit = model.merit(p, c, lam, mu)
+            rounding = ROUNDING * (abs(merit) + model.merit_scale(p, c, lam, mu))
+            if -slope <= rounding:
+                break  # the model predicts no decrease above the rounding of L
+            alpha, accepted = 1.0, False
+            for _ in range(40):
+                counts["line_search"] += 1
+                trial = np.clip(p + alpha * step, lower, upper)
+                c_trial = problem.residual(trial)
+                if model.merit(trial, c_trial, lam, mu) <= merit + ARMIJO * alpha * slope + rounding:
+                    accepted = np.all(np.isfinite(c_trial))
+                    break
+                alpha *= 0.5
+            if not accepted:
+                break  # no descent left at this accuracy: let the outer loop decide
+            p, c = trial, c_trial
+            J = problem.jacobian(p)
+            scale = gradient_scale(model.w, J)
+            history.append(float(np.abs(c).max(initial=0.0)))
+
+        # ---- outer: multipliers, penalty, convergence ----
+        violation = float(np.abs(c).max(initial=0.0))
+        lam = lam + mu * c
+        regularizer_gradient = model.w * (p - model.p0)
+        optimality = scaled_projected_gradient(p, regularizer_gradient + J.T @ lam, scale, lower, upper)
+        if violation <= tol and optimality > optimality_tol:
+            # the first-order update may lag behind a feasible p: try the least-squares multipliers
+            estimate = least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper)
+            kkt = scaled_projected_gradient(p, regularizer_gradient + J.T @ estimate, scale, lower, upper)
+            if kkt < optimality:
+                lam, optimality = estimate, kkt
+        if violation <= tol and optimality <= optimality_tol:
+            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT optimality "
+                          f"{optimality:.2e} <= {optimality_tol:g} after {counts['outer']} outer and "
+                          f"{counts['gauss_newton']} Gauss-Newton iterations")
+        if violation > tol and violation > 0.25 * previous_violation:
+            mu *= mu_growth
+            if mu >= 1e4 * mu0:
+                verdict = _infeasibility(problem, p, c, J, lower, upper)
+                if verdict:
+                    return finish("infeasible", verdict)
+        previous_violation = violation
+        omega = max(optimality_tol, 0.1 * omega)
+    return finish("max_iterations", f"stopped after {max_outer} outer iterations with |c|_inf = "
+                  f"{history[-1]:.3g} (target {tol:g}); raise max_outer")
+
+
+def _strand_mode_start(problem: Problem, counts: dict, **options) -> np.ndarray:
+    """A feasible start for per-element stiffness: the solution with one stiffness multiplier S for
+    the whole strand (supplement section V), spread to every element (multipliers = S, rest shape
+    copied). Element mode is bilinear in stiffness and rest shape, and from p0 (where stiffness has
+    no effect on c) Gauss-Newton crawls; from this start only the tail's stiffness has to come down.
+    The strand solve's iterations count towards ``counts``; p0 is returned if it did not converge."""
+    strand_problem = problem.with_options(stiffness="strand")
+    result = solve_alm(strand_problem, start="p0", **options)
+    for key, value in result.iterations.items():
+        counts[key] += value
+    if result.status != "converged":
+        return problem.p0
+    p = problem.p0
+    for block, index in problem.blocks.items():
+        if block in strand_problem.blocks:
+            p[index] = result.p[strand_problem.blocks[block]]
+        elif block.endswith("_stiffness"):
+            p[index] = result.p[strand_problem.blocks["strand_stiffness"]][0]
+    return p
+
+
+def _infeasibility(problem: Problem, p, c, J, lower, upper) -> str | None:
+    """A message naming the binding bounds if p is a stationary point of |c|^2 in the box, else None.
+
+    Tested by the box-constrained Levenberg-Marquardt step for 1/2 |c + J d|^2 (damping 1e-6 of
+    the diagonal keeps the rank-deficient J^T J definite): if even its linear model reduces |c| by
+    less than 1%, no nearby point in the box is closer to equilibrium.
+    """
+    H = (J.T @ J).tocsr()
+    H = H + sp.diags(1e-6 * H.diagonal() + 1e-12)
+    border = 1 if "strand_stiffness" in problem.blocks else 0
+    qp = solve_box_qp(bordered_band(H, border), -(J.T @ c), lower - p, upper - p, rtol=1e-10)
+    if qp.status != "converged" or np.linalg.norm(c + J @ qp.x) < 0.99 * np.linalg.norm(c):
+        return None
+    pull = -(J.T @ c)  # the direction in which each parameter would reduce |c|^2
+    binding = np.flatnonzero(((p >= upper) & (pull > 0)) | ((p <= lower) & (pull < 0)))
+    binding = binding[np.argsort(-np.abs(pull[binding]))]
+    where: dict[str, list[str]] = {}
+    for index in binding:
+        block, element = problem.layout.locate(int(index))
+        side = "upper" if p[index] >= upper[index] else "lower"
+        where.setdefault(f"{block} at its {side} bound", []).append(element)
+    details = "; ".join(f"{what} at {', '.join(elements[:6])}{' and more' if len(elements) > 6 else ''}"
+                        for what, elements in where.items())
+    violation = float(np.abs(c).max())
+    return (f"infeasible within bounds: |c|_inf stalls at {violation:.3g} (no parameters inside the box "
+            f"balance gravity). Binding: {details or 'none identified'}. Relax those bounds (bounds="
+            "{block: (lower, upper)}, or curvature_budget / twist_budget for the rest-shape boxes)")

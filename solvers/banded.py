@@ -1,0 +1,203 @@
+"""Bordered banded symmetric matrices: storage, products and the active-set Cholesky (DESIGN 5).
+
+The Gauss-Newton Hessian H = diag(R'') + mu J^T J is banded when p is ordered along the strand
+(element stiffness), except for the single strand multiplier of ``stiffness="strand"``, which couples
+to everything. So H is stored as a band of the first nb = n - m variables plus a dense border of the
+last m (m = 0 or 1):
+
+    H = [[B, C^T], [C, D]],  B banded (lower storage band[k, j] = B[j + k, j], k = 0..w),
+    C dense (m, nb), D dense (m, m).
+
+The active-set Cholesky factors H with the rows and columns of the active (bound) variables replaced by
+the identity: the band keeps its width, so a factorization costs O(nb w^2 + m^2 nb) and a solve
+O(nb w + m nb). Everything here is compiled with numba and allocation-free in the solve path.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+
+@dataclass
+class BorderedBand:
+    """H as (band, border, corner); see the module docstring."""
+
+    band: np.ndarray    # (w + 1, nb)
+    border: np.ndarray  # (m, nb)
+    corner: np.ndarray  # (m, m)
+
+    @property
+    def size(self) -> int:
+        return self.band.shape[1] + self.corner.shape[0]
+
+    def to_dense(self) -> np.ndarray:
+        nb, m = self.band.shape[1], self.corner.shape[0]
+        dense = np.zeros((nb + m, nb + m))
+        for k in range(self.band.shape[0]):
+            idx = np.arange(nb - k)
+            dense[idx + k, idx] = self.band[k, : nb - k]
+            dense[idx, idx + k] = self.band[k, : nb - k]
+        dense[nb:, :nb] = self.border
+        dense[:nb, nb:] = self.border.T
+        dense[nb:, nb:] = self.corner
+        return dense
+
+
+def bordered_band(matrix: sp.spmatrix, border: int) -> BorderedBand:
+    """Split a symmetric sparse matrix into band + dense border of the last ``border`` variables."""
+    coo = sp.tril(matrix, format="coo")
+    n = matrix.shape[0]
+    nb = n - border
+    in_band = coo.col < nb
+    in_band &= coo.row < nb
+    width = int((coo.row[in_band] - coo.col[in_band]).max(initial=0))
+    band = np.zeros((width + 1, nb))
+    np.add.at(band, (coo.row[in_band] - coo.col[in_band], coo.col[in_band]), coo.data[in_band])
+    dense = sp.csr_matrix(matrix)[nb:].toarray() if border else np.zeros((0, n))
+    return BorderedBand(band, np.ascontiguousarray(dense[:, :nb]), np.ascontiguousarray(dense[:, nb:]))
+
+
+@numba.njit(cache=True)
+def matvec(band, border, corner, x, out):  # pragma: no cover - compiled
+    """out = H x."""
+    w1, nb = band.shape
+    m = corner.shape[0]
+    for j in range(nb):
+        out[j] = band[0, j] * x[j]
+    for k in range(1, w1):
+        for j in range(nb - k):
+            out[j + k] += band[k, j] * x[j]
+            out[j] += band[k, j] * x[j + k]
+    for r in range(m):
+        s = 0.0
+        for j in range(nb):
+            out[j] += border[r, j] * x[nb + r]
+            s += border[r, j] * x[j]
+        for c in range(m):
+            s += corner[r, c] * x[nb + c]
+        out[nb + r] = s
+
+
+@numba.njit(cache=True)
+def gershgorin_bound(band, border, corner):  # pragma: no cover - compiled
+    """An upper bound of the largest eigenvalue of H: the largest absolute row sum."""
+    w1, nb = band.shape
+    m = corner.shape[0]
+    rows = np.zeros(nb + m)
+    for j in range(nb):
+        rows[j] += abs(band[0, j])
+    for k in range(1, w1):
+        for j in range(nb - k):
+            rows[j + k] += abs(band[k, j])
+            rows[j] += abs(band[k, j])
+    for r in range(m):
+        for j in range(nb):
+            rows[j] += abs(border[r, j])
+            rows[nb + r] += abs(border[r, j])
+        for c in range(m):
+            rows[nb + r] += abs(corner[r, c])
+    return rows.max()
+
+
+@numba.njit(cache=True)
+def factor_active(band, border, corner, free, lb, lborder, lcorner):  # pragma: no cover - compiled
+    """Active-set Cholesky: factor H with non-free rows/columns replaced by the identity.
+
+    Writes the band factor (same storage as ``band``), Y = C_F L_B^-T into ``lborder`` and the
+    Cholesky factor of the Schur complement D - Y Y^T into ``lcorner``. Returns False if a pivot is
+    not positive (H restricted to the free set is not positive definite).
+    """
+    w1, nb = band.shape
+    m = corner.shape[0]
+    w = w1 - 1
+    for k in range(w1):
+        for j in range(nb):
+            lb[k, j] = band[k, j] if (j + k < nb and free[j] and free[j + k]) else 0.0
+    for j in range(nb):
+        if not free[j]:
+            lb[0, j] = 1.0
+    # banded Cholesky (column-oriented, lower)
+    for j in range(nb):
+        d = lb[0, j]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        lb[0, j] = d
+        kmax = min(w, nb - 1 - j)
+        for k in range(1, kmax + 1):
+            lb[k, j] /= d
+        for k in range(1, kmax + 1):
+            f = lb[k, j]
+            if f != 0.0:
+                col = j + k
+                for i in range(k, kmax + 1):
+                    lb[i - k, col] -= lb[i, j] * f
+    # border: Y = C_F L^-T, i.e. L Y^T = C_F^T (forward substitution per border row)
+    for r in range(m):
+        active_row = not free[nb + r]
+        for j in range(nb):
+            lborder[r, j] = 0.0 if (active_row or not free[j]) else border[r, j]
+        for j in range(nb):
+            v = lborder[r, j] / lb[0, j]
+            lborder[r, j] = v
+            if v != 0.0:
+                for k in range(1, min(w, nb - 1 - j) + 1):
+                    lborder[r, j + k] -= lb[k, j] * v
+    for r in range(m):
+        for c in range(m):
+            if free[nb + r] and free[nb + c]:
+                s = corner[r, c]
+                for j in range(nb):
+                    s -= lborder[r, j] * lborder[c, j]
+            else:
+                s = 1.0 if r == c else 0.0
+            lcorner[r, c] = s
+    for c in range(m):  # dense Cholesky of the small Schur complement, in place (lower)
+        for k in range(c):
+            lcorner[c, c] -= lcorner[c, k] ** 2
+        if not lcorner[c, c] > 0.0:
+            return False
+        lcorner[c, c] = np.sqrt(lcorner[c, c])
+        for r in range(c + 1, m):
+            for k in range(c):
+                lcorner[r, c] -= lcorner[r, k] * lcorner[c, k]
+            lcorner[r, c] /= lcorner[c, c]
+    return True
+
+
+@numba.njit(cache=True)
+def solve_factored(lb, lborder, lcorner, rhs, out):  # pragma: no cover - compiled
+    """out = M^-1 rhs with M = L L^T from factor_active (out may not alias rhs)."""
+    w1, nb = lb.shape
+    m = lcorner.shape[0]
+    w = w1 - 1
+    for j in range(nb + m):
+        out[j] = rhs[j]
+    for j in range(nb):  # L_B y1 = r1
+        v = out[j] / lb[0, j]
+        out[j] = v
+        for k in range(1, min(w, nb - 1 - j) + 1):
+            out[j + k] -= lb[k, j] * v
+    for r in range(m):  # L_S y2 = r2 - Y y1
+        s = out[nb + r]
+        for j in range(nb):
+            s -= lborder[r, j] * out[j]
+        for c in range(r):
+            s -= lcorner[r, c] * out[nb + c]
+        out[nb + r] = s / lcorner[r, r]
+    for r in range(m - 1, -1, -1):  # L_S^T x2 = y2
+        s = out[nb + r]
+        for c in range(r + 1, m):
+            s -= lcorner[c, r] * out[nb + c]
+        out[nb + r] = s / lcorner[r, r]
+    for r in range(m):  # y1 -= Y^T x2
+        for j in range(nb):
+            out[j] -= lborder[r, j] * out[nb + r]
+    for j in range(nb - 1, -1, -1):  # L_B^T x1 = y1
+        s = out[j]
+        for k in range(1, min(w, nb - 1 - j) + 1):
+            s -= lb[k, j] * out[j + k]
+        out[j] = s / lb[0, j]

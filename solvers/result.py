@@ -1,0 +1,118 @@
+"""One Result type for every solver (DESIGN sections 5, 6, 10), in the manner of scipy's OptimizeResult.
+
+Every solver (``asc``, the baselines, ``naive``) ends in ``make_result``, which measures the outcome on
+the Problem itself, so a report never needs to know which solver produced a row: |c|_inf recomputed
+from ``problem.residual``, the largest residual force on a free vertex (N), R(p*), the stiffening and
+rest-shape change summaries, and the stability of the rest state.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sagfree.formulation import dofs
+from sagfree.formulation.parameters import STRAND_BLOCK
+from sagfree.formulation.problem import Problem
+
+STATUSES = ("converged", "infeasible", "max_iterations", "failed")
+#: A multiplier above this counts as stiffened (DESIGN section 8).
+STIFFENED = 1.01
+STIFFNESS_BLOCKS = ("stretch_stiffness", "bend_stiffness", "twist_stiffness", STRAND_BLOCK)
+REST_BLOCKS = ("rest_length", "rest_curvature", "rest_twist")
+
+
+@dataclass
+class Result:
+    """Outcome of one solver on one strand.
+
+    p: normalized parameters (Problem layout); status: converged | infeasible | max_iterations | failed;
+    iterations: counts by name (per solver; ours: outer, gauss_newton, cg, expansion, proportioning,
+    factorizations); residual_inf: |c(p)|_inf (unit-free); max_force: largest residual force on a free
+    vertex (N); objective: R(p); stiffening: per stiffness block {max, mean, stiffened} (ratio to the
+    specified stiffness, share of elements above 1.01); rest_change: per rest block {max, mean} absolute
+    change from p0 and {box} the largest change over the box half-width; time (s); min_eigenvalue of the
+    free-DOF Hessian at q* and stable = min_eigenvalue > 0; history: |c|_inf after each primal step.
+    """
+
+    solver: str
+    p: np.ndarray
+    status: str
+    message: str
+    iterations: dict[str, int]
+    residual_inf: float
+    max_force: float
+    objective: float
+    stiffening: dict[str, dict[str, float]]
+    rest_change: dict[str, dict[str, float]]
+    time: float
+    min_eigenvalue: float
+    stable: bool
+    history: list[float] = field(default_factory=list)
+
+    @property
+    def success(self) -> bool:
+        return self.status == "converged"
+
+    def __repr__(self) -> str:
+        counts = ", ".join(f"{k}={v}" for k, v in self.iterations.items())
+        stiff = ", ".join(f"{k} max {v['max']:.3g}" for k, v in self.stiffening.items())
+        return (f"Result(solver={self.solver!r}, status={self.status!r}, |c|_inf={self.residual_inf:.3g}, "
+                f"max_force={self.max_force:.3g} N, R={self.objective:.6g}, {counts}, "
+                f"time={self.time:.3g} s, stable={self.stable}{', ' + stiff if stiff else ''})\n"
+                f"  message: {self.message}")
+
+
+def max_vertex_force(problem: Problem, p: np.ndarray) -> float:
+    """Largest norm of the residual force on a free vertex position, N."""
+    f = problem.forces(p)
+    index = dofs.position_index(problem.n_vertices)
+    free = problem.free[index].all(axis=1)
+    return float(np.linalg.norm(f[index[free]], axis=1).max(initial=0.0))
+
+
+def stiffening_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
+    out = {}
+    for block in STIFFNESS_BLOCKS:
+        if block in problem.blocks:
+            ratio = p[problem.blocks[block]] / problem.layout.p0[problem.blocks[block]]
+            out[block] = {"max": float(ratio.max()), "mean": float(ratio.mean()),
+                          "stiffened": float(np.mean(ratio > STIFFENED))}
+    return out
+
+
+def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
+    out = {}
+    for block in REST_BLOCKS:
+        if block in problem.blocks:
+            ix = problem.blocks[block]
+            change = np.abs(p[ix] - problem.layout.p0[ix])
+            half_box = np.maximum(problem.layout.upper[ix] - problem.layout.p0[ix],
+                                  problem.layout.p0[ix] - problem.layout.lower[ix])
+            out[block] = {"max": float(change.max(initial=0.0)), "mean": float(change.mean()) if ix.size else 0.0,
+                          "box": float(np.max(change / np.where(half_box > 0, half_box, 1.0), initial=0.0))}
+    return out
+
+
+def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, message: str,
+                iterations: dict[str, int], time: float, history: list[float] | None = None) -> Result:
+    """Measure ``p`` on ``problem`` and package it; appends the stability verdict to the message."""
+    if status not in STATUSES:
+        raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
+    p = np.asarray(p, dtype=float).copy()
+    eigenvalue = problem.stability(p)
+    stable = bool(eigenvalue > 0)
+    if status == "converged" and not stable:
+        message += (f"; the rest state is UNSTABLE (smallest Hessian eigenvalue {eigenvalue:.3g}): "
+                    "a simulation will leave q*")
+    return Result(solver, p, status, message, dict(iterations),
+                  float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
+                  problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
+                  time, eigenvalue, stable, list(history or []))
+
+
+def failed_result(solver: str, message: str, n_parameters: int = 0, time: float = 0.0) -> Result:
+    """A Result for a strand whose problem could not even be built or evaluated."""
+    nan = float("nan")
+    return Result(solver, np.full(n_parameters, nan), "failed", message, {}, nan, nan, nan, {}, {}, time,
+                  nan, False, [])
