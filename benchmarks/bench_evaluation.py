@@ -33,7 +33,8 @@ def with_virtual_machine(problem):
     for name in ("_edge", "_vertex"):
         compiled = getattr(vm, name)
         setattr(vm, name, stencils.StencilFunctions(*(BatchFunction(f.function) for f in (
-            compiled.energy, compiled.gradient, compiled.hessian, compiled.geometry))))
+            compiled.energy, compiled.gradient, compiled.parameter_jacobian, compiled.hessian,
+            compiled.geometry))))
     return vm
 
 

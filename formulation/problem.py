@@ -156,10 +156,9 @@ class Problem:
     def elastic_gradient(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """grad_q E(q, p) (4n-1): N on positions, N m on angles."""
         edge, vertex = self._stencil_inputs(p, q, frames)
-        g = np.zeros(self.q_star.size)
-        np.add.at(g, self._edge_index, self._edge.gradient(*edge)[0])
-        np.add.at(g, self._vertex_index, self._vertex.gradient(*vertex)[0])
-        return g
+        size = self.q_star.size
+        return (np.bincount(self._edge_index.ravel(), self._edge.gradient(*edge)[0].ravel(), size)
+                + np.bincount(self._vertex_index.ravel(), self._vertex.gradient(*vertex)[0].ravel(), size))
 
     def forces(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """Generalized force f = -grad_q E(q, p) + f_gravity (4n-1), N and N m."""
@@ -172,8 +171,8 @@ class Problem:
     def jacobian(self, p) -> sp.csc_matrix:
         """dc/dp as a sparse (free DOFs x parameters) matrix, both axes in strand order (banded)."""
         edge, vertex = self._stencil_inputs(p, None, None)
-        return self._jacobian_pattern.assemble(self._edge.gradient(*edge)[1],
-                                               self._vertex.gradient(*vertex)[1])
+        return self._jacobian_pattern.assemble(self._edge.parameter_jacobian(*edge)[0],
+                                               self._vertex.parameter_jacobian(*vertex)[0])
 
     def hessian(self, p, q=None, frames: Frames | None = None) -> sp.csr_matrix:
         """d2E/dq2 (4n-1 square, sparse, half bandwidth 10)."""

@@ -23,12 +23,14 @@ from .kinematics import EDGE_DOFS, REFERENCE_SIZE, VERTEX_DOFS, edge_length, ver
 class StencilFunctions:
     """Batch functions of one stencil kind (inputs: DOFs, [reference,] geometry, physical).
 
-    energy -> E (J); gradient -> (dE/dy, d(dE/dy)/d(physical)); hessian -> d2E/dy2;
-    geometry (DOFs[, reference] only) -> the stencil's measured shape (see the builders).
+    energy -> E (J); gradient -> dE/dy; parameter_jacobian -> d(dE/dy)/d(physical);
+    hessian -> d2E/dy2; geometry (DOFs[, reference] only) -> the stencil's measured shape (see the
+    builders).
     """
 
     energy: BatchFunction
     gradient: BatchFunction
+    parameter_jacobian: BatchFunction
     hessian: BatchFunction
     geometry: BatchFunction
 
@@ -38,7 +40,8 @@ def _derived(name: str, energy, y, inputs) -> list[ca.Function]:
     g = ca.gradient(energy, y)
     return [
         ca.Function(f"{name}_energy", inputs, [energy]),
-        ca.Function(f"{name}_gradient", inputs, [ca.densify(g), ca.densify(ca.jacobian(g, physical))]),
+        ca.Function(f"{name}_gradient", inputs, [ca.densify(g)]),
+        ca.Function(f"{name}_parameter_jacobian", inputs, [ca.densify(ca.jacobian(g, physical))]),
         ca.Function(f"{name}_hessian", inputs, [ca.densify(ca.hessian(energy, y)[0])]),
     ]
 

@@ -32,12 +32,13 @@ import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
 
 from sagfree.formulation.problem import Problem
 
-from .banded import bordered_band
+from .banded import gram
 from .mprgp import solve_box_qp
 from .result import Result, make_result
 
 ARMIJO = 1e-4
 ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
+DAMPING = (1e-13, 1e-11, 1e-9)  # Levenberg-Marquardt damping of H, relative to its diagonal
 
 
 def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
@@ -80,13 +81,18 @@ class _Model:
         d = p - self.p0
         return 0.5 * float(np.sum(self.w * d * d)) + float(np.abs(lam) @ np.abs(c)) + 0.5 * mu * float(c @ c)
 
-    def hessian(self, J: sp.csc_matrix, mu: float):
-        """Bordered band of diag(w) + mu J^T J. A 1e-12 shift (in the normalized units of p, far
-        below any weight) keeps it definite when a weight is zero and its column vanishes; it must
-        not scale with the largest diagonal entry, which the stiff rest-length columns make ~1e16,
-        or it would erase the smooth curvature modes that hold a cantilever up."""
-        H = (mu * (J.T @ J)).tocsr() + sp.diags(self.w + 1e-12)
-        return bordered_band(H, self.border)
+    def hessian(self, J: sp.csc_matrix, mu: float, damping: float):
+        """Bordered band of diag(w) + mu J^T J + damping * mu diag(J^T J).
+
+        The stiff rest-length columns (~1e7 times the others) push the condition number of H past
+        1e16 once mu grows, and the active-set Cholesky then meets a non-positive pivot. A damping
+        relative to each variable's own diagonal (Levenberg-Marquardt) bounds the scaled condition
+        number by 1/damping; at 1e-13 it stays far below the smooth bending modes that hold a
+        cantilever up (a (pi/n)^4 share of the diagonal, 4e-9 at n = 400). A shift relative to the
+        LARGEST diagonal entry would erase those modes. The 1e-12 absolute shift keeps H definite
+        when a weight is zero and its column vanishes."""
+        column_norms = np.asarray(J.multiply(J).sum(axis=0)).ravel()
+        return gram(J, self.w + 1e-12 + damping * mu * column_norms, mu, self.border)
 
 
 def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
@@ -101,6 +107,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     _strand_mode_start), "p0" from p0; p_start overrides both.
     """
     clock = time.perf_counter()
+    history: list[float] = []
     lower, upper = problem.layout.lower, problem.layout.upper
     model = _Model(problem)
     counts = dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, factorizations=0,
@@ -109,14 +116,14 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
         p_start = problem.p0
         if start == "auto" and problem.layout.stiffness == "element" and any(
                 b in problem.blocks for b in ("stretch_stiffness", "bend_stiffness", "twist_stiffness")):
-            p_start = _strand_mode_start(problem, counts, tol=tol, optimality_tol=optimality_tol,
-                                         preconditioner=preconditioner, qp_rtol=qp_rtol)
+            p_start, history = _strand_mode_start(problem, counts, tol=tol, optimality_tol=optimality_tol,
+                                                  preconditioner=preconditioner, qp_rtol=qp_rtol)
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
-    lam = np.zeros(int(problem.free.sum()))
     mu, omega = mu0, 1e-2
     c, J = problem.residual(p), problem.jacobian(p)
     scale = gradient_scale(model.w, J)
-    history = [float(np.abs(c).max(initial=0.0))]
+    lam = np.zeros(int(problem.free.sum()))
+    history = history + [float(np.abs(c).max(initial=0.0))]
     previous_violation = np.inf
     at_lower, at_upper = p <= lower, p >= upper
 
@@ -138,8 +145,11 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
             # warm start: the bounds active in the previous step's QP are active again
             d_lower, d_upper = lower - p, upper - p
             start_step = np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0))
-            qp = solve_box_qp(model.hessian(J, mu), -gradient, d_lower, d_upper, x0=start_step,
-                              rtol=qp_rtol, preconditioner=preconditioner)
+            for damping in DAMPING:  # escalate only if rounding breaks the factorization
+                qp = solve_box_qp(model.hessian(J, mu, damping), -gradient, d_lower, d_upper,
+                                  x0=start_step, rtol=qp_rtol, preconditioner=preconditioner)
+                if qp.status != "not_positive_definite":
+                    break
             at_lower, at_upper = qp.x <= d_lower, qp.x >= d_upper
             for key in ("cg", "expansion", "proportioning", "factorizations"):
                 counts[key] += getattr(qp, key)
@@ -194,42 +204,53 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer")
 
 
-def _strand_mode_start(problem: Problem, counts: dict, **options) -> np.ndarray:
+def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.ndarray, list[float]]:
     """A feasible start for per-element stiffness: the solution with one stiffness multiplier S for
     the whole strand (supplement section V), spread to every element (multipliers = S, rest shape
     copied). Element mode is bilinear in stiffness and rest shape, and from p0 (where stiffness has
     no effect on c) Gauss-Newton crawls; from this start only the tail's stiffness has to come down.
-    The strand solve's iterations count towards ``counts``; p0 is returned if it did not converge."""
-    strand_problem = problem.with_options(stiffness="strand")
+    The strand solve's iterations count towards ``counts`` and its |c|_inf history is returned with
+    the start; p0 (and no history) if it did not converge."""
+    bounds, weights = dict(problem.options["bounds"] or {}), dict(problem.options["weights"] or {})
+    stiffness_ix = np.concatenate([ix for b, ix in problem.blocks.items() if b.endswith("_stiffness")])
+    bounds = {b: v for b, v in bounds.items() if not b.endswith("_stiffness")}
+    bounds["strand_stiffness"] = (problem.layout.lower[stiffness_ix].max(), problem.layout.upper[stiffness_ix].min())
+    weights = {b: v for b, v in weights.items() if not b.endswith("_stiffness")}
+    if bounds["strand_stiffness"][0] > bounds["strand_stiffness"][1]:
+        return problem.p0, []  # no common multiplier fits every element's box
+    strand_problem = problem.with_options(stiffness="strand", bounds=bounds, weights=weights)
     result = solve_alm(strand_problem, start="p0", **options)
     for key, value in result.iterations.items():
         counts[key] += value
     if result.status != "converged":
-        return problem.p0
+        return problem.p0, []
     p = problem.p0
     for block, index in problem.blocks.items():
         if block in strand_problem.blocks:
             p[index] = result.p[strand_problem.blocks[block]]
         elif block.endswith("_stiffness"):
             p[index] = result.p[strand_problem.blocks["strand_stiffness"]][0]
-    return p
+    return p, result.history
 
 
 def _infeasibility(problem: Problem, p, c, J, lower, upper) -> str | None:
     """A message naming the binding bounds if p is a stationary point of |c|^2 in the box, else None.
 
-    Tested by the box-constrained Levenberg-Marquardt step for 1/2 |c + J d|^2 (damping 1e-6 of
-    the diagonal keeps the rank-deficient J^T J definite): if even its linear model reduces |c| by
-    less than 1%, no nearby point in the box is closer to equilibrium.
+    Tested by the box-constrained Levenberg-Marquardt step for 1/2 |c + J d|^2: if even its linear
+    model reduces |c| by less than 1%, no nearby point in the box is closer to equilibrium. The
+    damping (1e-11 of the diagonal) keeps the rank-deficient J^T J definite but must stay below the
+    smooth bending modes, whose share of the diagonal falls like (pi/n)^4 with n vertices.
     """
-    H = (J.T @ J).tocsr()
-    H = H + sp.diags(1e-6 * H.diagonal() + 1e-12)
+    damping = 1e-11 * np.asarray(J.multiply(J).sum(axis=0)).ravel() + 1e-12
     border = 1 if "strand_stiffness" in problem.blocks else 0
-    qp = solve_box_qp(bordered_band(H, border), -(J.T @ c), lower - p, upper - p, rtol=1e-10)
+    qp = solve_box_qp(gram(J, damping, 1.0, border), -(J.T @ c), lower - p, upper - p, rtol=1e-10)
     if qp.status != "converged" or np.linalg.norm(c + J @ qp.x) < 0.99 * np.linalg.norm(c):
         return None
     pull = -(J.T @ c)  # the direction in which each parameter would reduce |c|^2
     binding = np.flatnonzero(((p >= upper) & (pull > 0)) | ((p <= lower) & (pull < 0)))
+    # what relaxing each bound could buy: the decrease of 1/2 |c|^2 by a scaled gradient step
+    gain = pull[binding] ** 2 / gradient_scale(problem.layout.weights, J)[binding]
+    binding = binding[gain >= 0.01 * gain.max(initial=0.0)]
     binding = binding[np.argsort(-np.abs(pull[binding]))]
     where: dict[str, list[str]] = {}
     for index in binding:

@@ -201,3 +201,50 @@ def solve_factored(lb, lborder, lcorner, rhs, out):  # pragma: no cover - compil
         for k in range(1, min(w, nb - 1 - j) + 1):
             s -= lb[k, j] * out[j + k]
         out[j] = s / lb[0, j]
+
+
+def gram(J: sp.spmatrix, diagonal: np.ndarray, scale: float, border: int) -> BorderedBand:
+    """diag(diagonal) + scale J^T J as a bordered band, accumulated row by row from J (no sparse
+    matrix product): each row of J touches only the parameters of a few neighbouring elements."""
+    J = sp.csr_matrix(J)
+    n = J.shape[1]
+    nb = n - border
+    indptr, indices, data = J.indptr, J.indices.astype(np.int64), J.data
+    width = _row_span(indptr, indices, nb)
+    band = np.zeros((width + 1, nb))
+    band[0] = diagonal[:nb]
+    bord = np.zeros((border, nb))
+    corner = np.diag(diagonal[nb:]).astype(float).reshape(border, border)
+    _accumulate_gram(indptr, indices, data, nb, scale, band, bord, corner)
+    return BorderedBand(band, bord, corner)
+
+
+@numba.njit(cache=True)
+def _row_span(indptr, indices, nb):  # pragma: no cover - compiled
+    """Largest distance between two band columns (< nb) that share a row."""
+    width = 0
+    for r in range(indptr.size - 1):
+        lo, hi = nb, -1
+        for k in range(indptr[r], indptr[r + 1]):
+            c = indices[k]
+            if c < nb:
+                lo = min(lo, c)
+                hi = max(hi, c)
+        width = max(width, hi - lo)
+    return width
+
+
+@numba.njit(cache=True)
+def _accumulate_gram(indptr, indices, data, nb, scale, band, border, corner):  # pragma: no cover
+    for r in range(indptr.size - 1):
+        for a in range(indptr[r], indptr[r + 1]):
+            ca, va = indices[a], scale * data[a]
+            for b in range(indptr[r], indptr[r + 1]):
+                cb = indices[b]
+                if ca < nb and cb < nb:
+                    if cb >= ca:
+                        band[cb - ca, ca] += va * data[b]
+                elif ca >= nb and cb < nb:
+                    border[ca - nb, cb] += va * data[b]
+                elif ca >= nb and cb >= nb:
+                    corner[ca - nb, cb - nb] += va * data[b]

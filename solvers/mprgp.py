@@ -67,13 +67,15 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
         return QPResult(np.zeros(hessian.size), STATUS[2], 0, 0, 0, 0, 0, float("nan"))
     s = 1.0 / np.sqrt(diagonal)
     scaled = _scaled(hessian, s)
-    lower, upper = np.asarray(lower, dtype=float) / s, np.asarray(upper, dtype=float) / s
-    y = np.clip(np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float) / s, lower, upper)
+    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    y = np.clip(np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float) / s, lower / s,
+                upper / s)
     counts = np.zeros(5, dtype=np.int64)
-    status, pg = _mprgp(scaled.band, scaled.border, scaled.corner, s * np.asarray(b, dtype=float), lower,
-                        upper, y, rtol, atol, max_iterations, PRECONDITIONERS[preconditioner], gamma,
-                        counts)
-    return QPResult(s * y, STATUS[status], int(counts[CG]), int(counts[EXPANSION]),
+    status, pg = _mprgp(scaled.band, scaled.border, scaled.corner, s * np.asarray(b, dtype=float),
+                        lower / s, upper / s, y, rtol, atol, max_iterations, PRECONDITIONERS[preconditioner],
+                        gamma, counts)
+    x = np.clip(s * y, lower, upper)  # exactly on the bound, not one rounding off it
+    return QPResult(x, STATUS[status], int(counts[CG]), int(counts[EXPANSION]),
                     int(counts[PROPORTIONING]), int(counts[FACTORIZATIONS]), int(counts[MATVECS]), pg)
 
 

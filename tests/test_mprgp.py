@@ -1,0 +1,80 @@
+"""MPRGP and the active-set Cholesky against exact references (DESIGN section 5)."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.optimize import lsq_linear
+
+from sagfree.solvers.banded import bordered_band, factor_active, matvec, solve_factored
+from sagfree.solvers.mprgp import PRECONDITIONERS, solve_box_qp
+
+
+def random_banded_spd(rng, n, width, border, condition=1e3):
+    """A random SPD matrix: band of ``width`` plus ``border`` dense trailing rows."""
+    B = sp.diags([rng.standard_normal(n - k) for k in range(width + 1)], [-k for k in range(width + 1)])
+    H = (B @ B.T).toarray()
+    H[np.abs(np.subtract.outer(np.arange(n), np.arange(n))) > width] = 0.0
+    nb = n - border
+    H[nb:, :] = 0.0
+    H[:, nb:] = 0.0
+    H[nb:, :nb] = rng.standard_normal((border, nb)) * 0.3
+    H[:nb, nb:] = H[nb:, :nb].T
+    H = 0.5 * (H + H.T)
+    e = np.linalg.eigvalsh(H)
+    H += (e.max() / condition - min(e.min(), 0.0)) * np.eye(n)
+    scale = np.exp(rng.uniform(-3, 3, n))  # badly scaled variables, as rest length vs stiffness
+    H *= np.outer(scale, scale)
+    return H
+
+
+def exact_box_qp(H, b, lower, upper):
+    """min 1/2 x^T H x - b^T x in the box, as bounded least squares ||L^T x - L^-1 b|| (BVLS)."""
+    L = np.linalg.cholesky(H)
+    return lsq_linear(L.T, np.linalg.solve(L, b), bounds=(lower, upper), method="bvls", tol=1e-15).x
+
+
+@pytest.mark.parametrize("border", [0, 1])
+@pytest.mark.parametrize("seed", range(4))
+def test_mprgp_matches_an_exact_solution_for_every_preconditioner(seed, border):
+    rng = np.random.default_rng(seed)
+    n = 50
+    H = random_banded_spd(rng, n, 4, border)
+    b = rng.standard_normal(n) * 5
+    lower, upper = -rng.uniform(0.05, 1, n), rng.uniform(0.05, 1, n)
+    lower[rng.uniform(size=n) < 0.1] = -np.inf  # some one-sided and free variables
+    upper[rng.uniform(size=n) < 0.1] = np.inf
+    reference = exact_box_qp(H, b, np.maximum(lower, -1e10), np.minimum(upper, 1e10))
+    assert np.sum((reference <= lower + 1e-12) | (reference >= upper - 1e-12)) > 3  # bounds matter
+    for name in PRECONDITIONERS:
+        result = solve_box_qp(bordered_band(sp.csr_matrix(H), border), b, lower, upper, rtol=1e-12,
+                              max_iterations=20_000, preconditioner=name)
+        assert result.status == "converged", name
+        assert np.all(result.x >= lower) and np.all(result.x <= upper)
+        assert np.abs(result.x - reference).max() < 1e-8 * max(1.0, np.abs(reference).max()), name
+    cholesky = solve_box_qp(bordered_band(sp.csr_matrix(H), border), b, lower, upper, rtol=1e-12)
+    none = solve_box_qp(bordered_band(sp.csr_matrix(H), border), b, lower, upper, rtol=1e-12,
+                        preconditioner="none")
+    assert cholesky.cg + cholesky.expansion < none.cg + none.expansion  # what the factor buys
+
+
+def test_active_set_cholesky_solves_the_restricted_system(rng):
+    n, border = 40, 1
+    H = random_banded_spd(rng, n, 3, border)
+    bb = bordered_band(sp.csr_matrix(H), border)
+    free = rng.uniform(size=n) < 0.7
+    lb, lborder, lcorner = np.empty_like(bb.band), np.empty_like(bb.border), np.empty_like(bb.corner)
+    assert factor_active(bb.band, bb.border, bb.corner, free, lb, lborder, lcorner)
+    M = np.where(np.outer(free, free), H, 0.0) + np.diag(~free * 1.0)
+    r = rng.standard_normal(n)
+    out = np.empty(n)
+    solve_factored(lb, lborder, lcorner, r, out)
+    assert np.allclose(out, np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)
+    y = np.empty(n)
+    matvec(bb.band, bb.border, bb.corner, r, y)
+    assert np.allclose(y, H @ r)
+    assert np.allclose(bb.to_dense(), H)
+
+
+def test_indefinite_matrix_is_reported(rng):
+    H = -np.eye(6)
+    result = solve_box_qp(bordered_band(sp.csr_matrix(H), 0), np.ones(6), -np.ones(6), np.ones(6))
+    assert result.status == "not_positive_definite"
