@@ -9,8 +9,13 @@ with H a bordered band (banded module). With g = H x - b and the free set F = {i
 * reduced free gradient phi~_i = min((x_i - l_i)/abar, phi_i) for phi_i > 0, max((x_i - u_i)/abar,
   phi_i) for phi_i < 0, abar = 1.9 / ||H|| (Gershgorin bound);
 * if beta^T beta <= Gamma^2 phi~^T phi ("proportional"): a preconditioned CG step in the face; when it
-  would leave the box, an EXPANSION step: to the boundary, then a projected gradient step of length
-  abar on phi;
+  would leave the box, an EXPANSION step: Dostal's step to the boundary followed by a projected
+  gradient step of length abar on phi, with two additions that keep its decrease guarantee (each
+  only moves to a point of lower f): the step to the boundary continues along the bent path
+  P(x - t p) to its first minimizer, and the projected preconditioned step P(x - t M_F^-1 phi)
+  (t = 1, 1/2, ...) replaces the gradient step when it is lower. Both activate many bounds at once,
+  where the plain expansion activates one: on the Gauss-Newton QPs of a 100-vertex groom strand,
+  whose scaled condition number is ~1e9, this took the worst QP from 592 expansions to about 70;
 * otherwise a PROPORTIONING step along -beta, which releases bound variables.
 
 Preconditioners of the CG steps: ``cholesky`` (the active-set Cholesky: the exact factor of H on the free
@@ -118,6 +123,16 @@ def _gradients(x, g, lower, upper, abar, phi, beta, free):  # pragma: no cover -
 
 
 @numba.njit(cache=True)
+def _objective(band, border, corner, b, x, work):  # pragma: no cover - compiled
+    """f(x) = 1/2 x^T H x - b^T x (work receives H x)."""
+    matvec(band, border, corner, x, work)
+    f = 0.0
+    for i in range(x.size):
+        f += x[i] * (0.5 * work[i] - b[i])
+    return f
+
+
+@numba.njit(cache=True)
 def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations, precond, gamma,
            counts):  # pragma: no cover - compiled
     n = x.size
@@ -132,6 +147,8 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
     z = np.empty(n)
     p = np.empty(n)
     trial = np.empty(n)
+    best = np.empty(n)
+    direction = np.empty(n)
     free = np.empty(n, dtype=np.bool_)
     factored_free = np.zeros(n, dtype=np.bool_)
     diag = np.empty(n)
@@ -220,46 +237,76 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 cg_beta = zhp / php
                 for i in range(n):
                     p[i] = z[i] - cg_beta * p[i]
-            else:  # expansion step: to the boundary, then a projected step
+            else:  # expansion step
                 counts[1] += 1
+                # (a) projected search along p: past the first blocking bound, follow the bent
+                # path P(x - t p) segment by segment to its first minimizer, activating every
+                # bound met on the way (one expansion instead of one per bound)
                 for i in range(n):
-                    x[i] -= afeas * p[i]
-                    g[i] -= afeas * hp[i]
-                x[block] = lower[block] if p[block] > 0.0 else upper[block]
+                    direction[i] = p[i]
+                for _segment in range(n + 1):
+                    matvec(band, border, corner, direction, hp)
+                    counts[4] += 1
+                    slope = 0.0
+                    curvature = 0.0
+                    for i in range(n):
+                        slope -= g[i] * direction[i]
+                        curvature += direction[i] * hp[i]
+                    if slope >= 0.0 or curvature <= 0.0:
+                        break
+                    tbreak = np.inf
+                    block = -1
+                    for i in range(n):
+                        if direction[i] > 0.0:
+                            a = (x[i] - lower[i]) / direction[i]
+                        elif direction[i] < 0.0:
+                            a = (x[i] - upper[i]) / direction[i]
+                        else:
+                            continue
+                        if a < tbreak:
+                            tbreak = a
+                            block = i
+                    tstar = -slope / curvature
+                    step = min(tstar, tbreak)
+                    for i in range(n):
+                        x[i] -= step * direction[i]
+                        g[i] -= step * hp[i]
+                    if tstar < tbreak:
+                        break
+                    x[block] = lower[block] if direction[block] > 0.0 else upper[block]
+                    direction[block] = 0.0
                 _gradients(x, g, lower, upper, abar, phi, beta, free)
-                # candidate 1 (Dostal): projected free-gradient step of fixed length abar
+                # (b) Dostal's projected free-gradient step of fixed length abar
                 for i in range(n):
                     trial[i] = min(max(x[i] - abar * phi[i], lower[i]), upper[i])
-                matvec(band, border, corner, trial, g)
+                f_best = _objective(band, border, corner, b, trial, hp)
                 counts[4] += 1
-                f_trial = 0.0
                 for i in range(n):
-                    g[i] -= b[i]
-                    f_trial += 0.5 * trial[i] * (g[i] - b[i])
-                # candidate 2: the projected preconditioned step P(x - M_F^-1 phi); with the
-                # active-set Cholesky this is the projected Newton step of the face, which can
-                # activate many bounds at once. Kept only when it lowers the objective further,
-                # so the expansion decreases f at least as much as Dostal's step.
+                    best[i] = trial[i]
+                # (c) the preconditioned (with the active-set Cholesky: Newton) step of the face,
+                # projected, backtracked along the projection arc; kept only if it beats (b), so
+                # the expansion decreases f at least as much as Dostal's step
                 if precond != 0:
                     if not precondition(False):
                         return 2, np.sqrt(gp2)
-                    for i in range(n):
-                        x[i] = min(max(x[i] - z[i], lower[i]), upper[i])
-                    matvec(band, border, corner, x, hp)
-                    counts[4] += 1
-                    f_newton = 0.0
-                    for i in range(n):
-                        hp[i] -= b[i]
-                        f_newton += 0.5 * x[i] * (hp[i] - b[i])
-                    if f_newton < f_trial:
+                    t = 1.0
+                    for _arc in range(12):
                         for i in range(n):
-                            g[i] = hp[i]
-                    else:
-                        for i in range(n):
-                            x[i] = trial[i]
-                else:
-                    for i in range(n):
-                        x[i] = trial[i]
+                            trial[i] = min(max(x[i] - t * z[i], lower[i]), upper[i])
+                        f_trial = _objective(band, border, corner, b, trial, hp)
+                        counts[4] += 1
+                        if f_trial < f_best:
+                            f_best = f_trial
+                            for i in range(n):
+                                best[i] = trial[i]
+                            break
+                        t *= 0.5
+                for i in range(n):
+                    x[i] = best[i]
+                matvec(band, border, corner, x, g)
+                counts[4] += 1
+                for i in range(n):
+                    g[i] -= b[i]
                 gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
                 if not precondition(False):
                     return 2, np.sqrt(gp2)
