@@ -38,7 +38,8 @@ from .result import Result, make_result
 
 ARMIJO = 1e-4
 ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
-DAMPING = (1e-13, 1e-11, 1e-9)  # Levenberg-Marquardt damping of H, relative to its diagonal
+DAMPING = (1e-13, 1e-11, 1e-9)
+NONMONOTONE = 5  # Grippo-Lampariello-Lucidi memory of the line search
 
 
 def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
@@ -97,7 +98,8 @@ class _Model:
 
 def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
               max_gauss_newton: int = 600, mu0: float = 10.0, mu_growth: float = 10.0,
-              preconditioner: str = "cholesky", qp_rtol: float = 1e-10, start: str = "auto",
+              omega0: float = 1.0, preconditioner: str = "cholesky", qp_rtol: float = 1e-10,
+              start: str = "auto",
               p_start=None) -> Result:
     """Solve ``problem`` with our augmented Lagrangian solver; see the module docstring.
 
@@ -119,7 +121,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
             p_start, history = _strand_mode_start(problem, counts, tol=tol, optimality_tol=optimality_tol,
                                                   preconditioner=preconditioner, qp_rtol=qp_rtol)
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
-    mu, omega = mu0, 1e-2
+    mu, omega = mu0, omega0
     c, J = problem.residual(p), problem.jacobian(p)
     scale = gradient_scale(model.w, J)
     lam = np.zeros(int(problem.free.sum()))
@@ -134,6 +136,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     while counts["outer"] < max_outer:
         counts["outer"] += 1
         # ---- inner: Gauss-Newton on the augmented Lagrangian ----
+        recent: list[float] = []
         while True:
             gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
             if scaled_projected_gradient(p, gradient, scale, lower, upper) <= omega:
@@ -158,6 +161,8 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                               f"{counts['gauss_newton']}")
             step, slope = qp.x, float(gradient @ qp.x)
             merit = model.merit(p, c, lam, mu)
+            recent.append(merit)
+            reference = max(recent[-NONMONOTONE:])
             rounding = ROUNDING * (abs(merit) + model.merit_scale(p, c, lam, mu))
             if -slope <= rounding:
                 break  # the model predicts no decrease above the rounding of L
@@ -166,7 +171,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                 counts["line_search"] += 1
                 trial = np.clip(p + alpha * step, lower, upper)
                 c_trial = problem.residual(trial)
-                if model.merit(trial, c_trial, lam, mu) <= merit + ARMIJO * alpha * slope + rounding:
+                if model.merit(trial, c_trial, lam, mu) <= reference + ARMIJO * alpha * slope + rounding:
                     accepted = np.all(np.isfinite(c_trial))
                     break
                 alpha *= 0.5
