@@ -123,6 +123,22 @@ def _gradients(x, g, lower, upper, abar, phi, beta, free):  # pragma: no cover -
 
 
 @numba.njit(cache=True)
+def _feasible_step(x, d, lower, upper):  # pragma: no cover - compiled
+    """Largest t with lower <= x - t d <= upper, and the index of the bound that blocks it."""
+    largest, block = np.inf, -1
+    for i in range(x.size):
+        if d[i] > 0.0:
+            t = (x[i] - lower[i]) / d[i]
+        elif d[i] < 0.0:
+            t = (x[i] - upper[i]) / d[i]
+        else:
+            continue
+        if t < largest:
+            largest, block = t, i
+    return largest, block
+
+
+@numba.njit(cache=True)
 def _objective(band, border, corner, b, x, work):  # pragma: no cover - compiled
     """f(x) = 1/2 x^T H x - b^T x (work receives H x)."""
     matvec(band, border, corner, x, work)
@@ -211,18 +227,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
             if not php > 0.0:
                 return 2, np.sqrt(gp2)
             acg = gp / php
-            afeas = np.inf
-            block = -1
-            for i in range(n):
-                if p[i] > 0.0:
-                    a = (x[i] - lower[i]) / p[i]
-                elif p[i] < 0.0:
-                    a = (x[i] - upper[i]) / p[i]
-                else:
-                    continue
-                if a < afeas:
-                    afeas = a
-                    block = i
+            afeas, block = _feasible_step(x, p, lower, upper)
             if acg <= afeas:  # conjugate gradient step in the face
                 counts[0] += 1
                 for i in range(n):
@@ -254,18 +259,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                         curvature += direction[i] * hp[i]
                     if slope >= 0.0 or curvature <= 0.0:
                         break
-                    tbreak = np.inf
-                    block = -1
-                    for i in range(n):
-                        if direction[i] > 0.0:
-                            a = (x[i] - lower[i]) / direction[i]
-                        elif direction[i] < 0.0:
-                            a = (x[i] - upper[i]) / direction[i]
-                        else:
-                            continue
-                        if a < tbreak:
-                            tbreak = a
-                            block = i
+                    tbreak, block = _feasible_step(x, direction, lower, upper)
                     tstar = -slope / curvature
                     step = min(tstar, tbreak)
                     for i in range(n):
