@@ -46,6 +46,7 @@ ARMIJO = 1e-4
 ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
 DAMPING = (1e-13, 1e-11, 1e-9)  # relative Levenberg-Marquardt damping, escalated on breakdown
 NONMONOTONE = 5  # Grippo-Lampariello-Lucidi memory of the line search
+START_GAUSS_NEWTON = 40  # cap of the strand-stiffness start (_strand_mode_start)
 
 
 def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
@@ -223,8 +224,9 @@ def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.nd
     the whole strand (supplement section V), spread to every element (multipliers = S, rest shape
     copied). Element mode is bilinear in stiffness and rest shape, and from p0 (where stiffness has
     no effect on c) Gauss-Newton crawls; from this start only the tail's stiffness has to come down.
-    The strand solve's iterations count towards ``counts`` and its |c|_inf history is returned with
-    the start; p0 (and no history) if it did not converge."""
+    The strand solve is capped at START_GAUSS_NEWTON steps (it usually needs 7-20; a rare slow one
+    still gives a good start); its iterations count towards ``counts`` and its |c|_inf history is
+    returned with the start; p0 (and no history) if it failed or is infeasible."""
     bounds, weights = dict(problem.options["bounds"] or {}), dict(problem.options["weights"] or {})
     stiffness_ix = np.concatenate([ix for b, ix in problem.blocks.items() if b.endswith("_stiffness")])
     bounds = {b: v for b, v in bounds.items() if not b.endswith("_stiffness")}
@@ -234,10 +236,10 @@ def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.nd
     if bounds["strand_stiffness"][0] > bounds["strand_stiffness"][1]:
         return problem.p0, []  # no common multiplier fits every element's box
     strand_problem = problem.with_options(stiffness="strand", bounds=bounds, weights=weights)
-    result = solve_alm(strand_problem, start="p0", **options)
+    result = solve_alm(strand_problem, start="p0", max_gauss_newton=START_GAUSS_NEWTON, **options)
     for key, value in result.iterations.items():
         counts[key] += value
-    if result.status != "converged":
+    if result.status not in ("converged", "max_iterations"):
         return problem.p0, []
     p = problem.p0
     for block, index in problem.blocks.items():
