@@ -220,10 +220,18 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
 
 
 def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.ndarray, list[float]]:
-    """A feasible start for per-element stiffness: the solution with one stiffness multiplier S for
-    the whole strand (supplement section V), spread to every element (multipliers = S, rest shape
-    copied). Element mode is bilinear in stiffness and rest shape, and from p0 (where stiffness has
-    no effect on c) Gauss-Newton crawls; from this start only the tail's stiffness has to come down.
+    """A feasible start for per-element stiffness, from the solution with one stiffness multiplier S
+    for the whole strand (supplement section V).
+
+    Element mode is bilinear in stiffness and rest shape, and from p0 (where stiffness has no effect
+    on c) Gauss-Newton crawls. The strand solution balances gravity; its forces depend on each
+    element only through the products y = S (kbar - kappa*) (bend), z = S (mbar - m*) (twist) and
+    S * strain (stretch). Keeping those products keeps c: each vertex gets the least multiplier its
+    boxes allow, k_i = max(1, |y_i| / b_i, |z_i| / b_m,i), with kbar - kappa* = y / k_i and
+    mbar - m* = z / k_i; each edge keeps multiplier 1 and takes the strain S * strain through its
+    rest length. So only the root, where the boxes bind, starts stiffened; the tail starts at its
+    specified stiffness.
+
     The strand solve is capped at START_GAUSS_NEWTON steps (it usually needs 7-20; a rare slow one
     still gives a good start); its iterations count towards ``counts`` and its |c|_inf history is
     returned with the start; p0 (and no history) if it failed or is infeasible."""
@@ -241,13 +249,54 @@ def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.nd
         counts[key] += value
     if result.status not in ("converged", "max_iterations"):
         return problem.p0, []
+    return _spread_strand_solution(problem, strand_problem, result.p), result.history
+
+
+def _spread_strand_solution(problem: Problem, strand_problem: Problem, strand_p) -> np.ndarray:
+    """Element parameters with the same forces as the strand solution (see _strand_mode_start)."""
+    layout, blocks = problem.layout, problem.blocks
+    S = float(strand_p[strand_problem.blocks["strand_stiffness"]][0])
     p = problem.p0
-    for block, index in problem.blocks.items():
-        if block in strand_problem.blocks:
-            p[index] = result.p[strand_problem.blocks[block]]
-        elif block.endswith("_stiffness"):
-            p[index] = result.p[strand_problem.blocks["strand_stiffness"]][0]
-    return p, result.history
+
+    def excess(block):
+        """(moment-like product, box half-width) of a rest block, per entry."""
+        ix = blocks[block]
+        change = S * (strand_p[strand_problem.blocks[block]] - layout.p0[ix])
+        half = np.minimum(layout.upper[ix] - layout.p0[ix], layout.p0[ix] - layout.lower[ix])
+        return change, np.maximum(half, 1e-300)
+
+    n_inner = problem.n_vertices - 2
+    need = {"bend_stiffness": np.ones(n_inner), "twist_stiffness": np.ones(n_inner)}
+    products = {}
+    for block, target in (("rest_curvature", "bend_stiffness"), ("rest_twist", "twist_stiffness")):
+        if block in blocks:
+            change, half = excess(block)
+            products[block] = change
+            per_vertex = (np.abs(change) / half).reshape(n_inner, -1).max(axis=1)
+            need[target] = np.maximum(need[target], per_vertex)
+    coupled = "twist_stiffness" not in blocks
+    bend = np.maximum(need["bend_stiffness"], need["twist_stiffness"]) if coupled else need["bend_stiffness"]
+    twist = bend if coupled else need["twist_stiffness"]
+    multipliers = {"bend_stiffness": bend, "twist_stiffness": twist,
+                   "stretch_stiffness": np.ones(problem.n_vertices - 1)}
+    for block, k in multipliers.items():
+        if block in blocks:
+            p[blocks[block]] = np.clip(k, layout.lower[blocks[block]], layout.upper[blocks[block]])
+    # the multipliers actually in force (a block not optimized keeps its specified value 1; a
+    # coupled twist follows the bend multiplier)
+    k_bend = p[blocks["bend_stiffness"]] if "bend_stiffness" in blocks else np.ones(n_inner)
+    k_twist = p[blocks["twist_stiffness"]] if not coupled else k_bend
+    if "rest_curvature" in blocks:
+        ix = blocks["rest_curvature"]
+        p[ix] = layout.p0[ix] + products["rest_curvature"] / np.repeat(k_bend, 2)
+    if "rest_twist" in blocks:
+        ix = blocks["rest_twist"]
+        p[ix] = layout.p0[ix] + products["rest_twist"] / k_twist
+    if "rest_length" in blocks:  # strain(u) = -u / (1 + u) at q*; keep S * strain with multiplier 1
+        u = strand_p[strand_problem.blocks["rest_length"]]
+        strain = S * (-u / (1.0 + u))
+        p[blocks["rest_length"]] = -strain / (1.0 + strain)
+    return np.clip(p, layout.lower, layout.upper)
 
 
 def _infeasibility(problem: Problem, p, c, J, lower, upper) -> str | None:

@@ -1,7 +1,6 @@
 """Our solver on the reference scenes: equilibrium, bounds, KKT, infeasibility, section V, batches."""
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 import sagfree
 from sagfree.solvers.result import STIFFENED

@@ -1,6 +1,5 @@
 """`sagfree check`: AD vs hand-derived vs finite differences for every term, block and variant."""
 import numpy as np
-import pytest
 
 import sagfree
 from sagfree.cli import main
