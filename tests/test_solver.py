@@ -124,3 +124,21 @@ def test_batch_is_deterministic_for_any_job_count_and_isolates_failures():
         assert np.array_equal(serial[k].p, parallel[k].p)
     with pytest.raises(ValueError, match="unknown solver"):
         sagfree.optimize(strands, solver="magic")
+
+
+@pytest.mark.parametrize("scene", ["horizontal", "curly"])
+def test_strand_solution_spread_to_elements_keeps_the_forces(scene):
+    """The element-mode start: multipliers only where the boxes bind, same equilibrium forces."""
+    from sagfree.solvers.alm import _spread_strand_solution
+    element = sagfree.Problem(SCENES[scene]())
+    strand = element.with_options(stiffness="strand")
+    single = sagfree.solve(strand)
+    start = _spread_strand_solution(element, strand, single.p)
+    assert np.all(start >= element.lower) and np.all(start <= element.upper)
+    # feasible up to the bend and twist prefactors 1/(lbar_{i-1} + lbar_i), whose rest lengths move by
+    # ~1e-7 when the strain S * strain is carried by the rest length instead of the stiffness
+    assert np.abs(element.residual(start)).max() < 1e-4
+    bend = start[element.blocks["bend_stiffness"]]
+    S = single.p[strand.blocks["strand_stiffness"]][0]
+    assert bend.max() <= S * (1 + 1e-9) and bend.min() == 1.0  # the tail starts unstiffened
+    assert np.all(start[element.blocks["stretch_stiffness"]] == 1.0)
