@@ -34,7 +34,7 @@ from .banded import BorderedBand, factor_active, gershgorin_bound, matvec, solve
 
 PRECONDITIONERS = {"none": 0, "jacobi": 1, "cholesky": 2}
 STATUS = {0: "converged", 1: "max_iterations", 2: "not_positive_definite", 3: "non_finite"}
-# counts layout
+# layout of the counts array, filled inside the compiled loop
 CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS = range(5)
 
 
@@ -48,10 +48,6 @@ class QPResult:
     factorizations: int
     matvecs: int
     projected_gradient: float   # ||g^P||_2 at x
-
-    @property
-    def iterations(self) -> int:
-        return self.cg + self.expansion + self.proportioning
 
 
 def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -175,7 +171,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
     abar = 1.9 / max(gershgorin_bound(band, border, corner), 1e-300)
 
     matvec(band, border, corner, x, g)
-    counts[4] += 1
+    counts[MATVECS] += 1
     for i in range(n):
         g[i] -= b[i]
     gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
@@ -191,7 +187,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                     changed = True
                     break
             if changed:
-                counts[3] += 1
+                counts[FACTORIZATIONS] += 1
                 if not factor_active(band, border, corner, free, lb, lborder, lcorner):
                     return False
                 for i in range(n):
@@ -218,7 +214,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
             return 0, np.sqrt(gp2)
         if bb <= gamma * gamma * tp:
             matvec(band, border, corner, p, hp)
-            counts[4] += 1
+            counts[MATVECS] += 1
             php = 0.0
             gp = 0.0
             for i in range(n):
@@ -229,7 +225,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
             acg = gp / php
             afeas, block = _feasible_step(x, p, lower, upper)
             if acg <= afeas:  # conjugate gradient step in the face
-                counts[0] += 1
+                counts[CG] += 1
                 for i in range(n):
                     x[i] -= acg * p[i]
                     g[i] -= acg * hp[i]
@@ -243,7 +239,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 for i in range(n):
                     p[i] = z[i] - cg_beta * p[i]
             else:  # expansion step
-                counts[1] += 1
+                counts[EXPANSION] += 1
                 # (a) projected search along p: past the first blocking bound, follow the bent
                 # path P(x - t p) segment by segment to its first minimizer, activating every
                 # bound met on the way (one expansion instead of one per bound)
@@ -251,7 +247,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                     direction[i] = p[i]
                 for _segment in range(n + 1):
                     matvec(band, border, corner, direction, hp)
-                    counts[4] += 1
+                    counts[MATVECS] += 1
                     slope = 0.0
                     curvature = 0.0
                     for i in range(n):
@@ -274,7 +270,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 for i in range(n):
                     trial[i] = min(max(x[i] - abar * phi[i], lower[i]), upper[i])
                 f_best = _objective(band, border, corner, b, trial, hp)
-                counts[4] += 1
+                counts[MATVECS] += 1
                 for i in range(n):
                     best[i] = trial[i]
                 # (c) the preconditioned (with the active-set Cholesky: Newton) step of the face,
@@ -288,7 +284,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                         for i in range(n):
                             trial[i] = min(max(x[i] - t * z[i], lower[i]), upper[i])
                         f_trial = _objective(band, border, corner, b, trial, hp)
-                        counts[4] += 1
+                        counts[MATVECS] += 1
                         if f_trial < f_best:
                             f_best = f_trial
                             for i in range(n):
@@ -298,7 +294,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 for i in range(n):
                     x[i] = best[i]
                 matvec(band, border, corner, x, g)
-                counts[4] += 1
+                counts[MATVECS] += 1
                 for i in range(n):
                     g[i] -= b[i]
                 gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
@@ -307,9 +303,9 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 for i in range(n):
                     p[i] = z[i]
         else:  # proportioning step: release variables along the chopped gradient
-            counts[2] += 1
+            counts[PROPORTIONING] += 1
             matvec(band, border, corner, beta, hp)
-            counts[4] += 1
+            counts[MATVECS] += 1
             bhb = 0.0
             for i in range(n):
                 bhb += beta[i] * hp[i]
