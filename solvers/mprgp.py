@@ -16,7 +16,12 @@ with H a bordered band (banded module). With g = H x - b and the free set F = {i
   (t = 1, 1/2, ...) replaces the gradient step when it is lower. Both activate many bounds at once,
   where the plain expansion activates one: on the Gauss-Newton QPs of a 100-vertex groom strand,
   whose scaled condition number is ~1e9, this took the worst QP from 592 expansions to about 70;
-* otherwise a PROPORTIONING step along -beta, which releases bound variables.
+  The bent path is searched breakpoint by breakpoint with O(w) updates (_projected_search);
+* otherwise a PROPORTIONING step, which releases bound variables: Dostal's step along -beta, or,
+  with the active-set Cholesky, the projected search along the Newton direction of the face enlarged
+  by the variables beta would release, whichever is lower (so again at least Dostal's decrease). On
+  the Gauss-Newton QPs of 10 groom strands it cut the expansions per QP from 6.0 to 4.5 at 400
+  vertices and the time per QP by 4% (400 vertices) and 13% (100).
 
 Preconditioners of the CG steps: ``cholesky`` (the active-set Cholesky: the exact factor of H on the free
 set, so a CG step jumps to the face minimizer; refactored whenever the free set changes), ``jacobi``
@@ -145,6 +150,103 @@ def _objective(band, border, corner, b, x, work):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _column_times(band, border, corner, j, scale, out):  # pragma: no cover - compiled
+    """out += scale * H e_j (O(w) for a band column, O(n) for a border column)."""
+    w1, nb = band.shape
+    m = corner.shape[0]
+    if j < nb:
+        out[j] += scale * band[0, j]
+        for k in range(1, w1):
+            if j + k < nb:
+                out[j + k] += scale * band[k, j]
+            if j - k >= 0:
+                out[j - k] += scale * band[k, j - k]
+        for r in range(m):
+            out[nb + r] += scale * border[r, j]
+    else:
+        r = j - nb
+        for i in range(nb):
+            out[i] += scale * border[r, i]
+        for c in range(m):
+            out[nb + c] += scale * corner[c, r]
+
+
+@numba.njit(cache=True)
+def _path_gradient(band, border, corner, g0, x0, p, lower, upper, t, j):  # pragma: no cover
+    """g_j at x(t) = P(x0 - t p): g0_j + sum_i H_ji (x_i(t) - x0_i), over row j's band and border."""
+    w1, nb = band.shape
+    m = corner.shape[0]
+    s = g0[j]
+    if j < nb:
+        for i in range(max(0, j - w1 + 1), min(nb, j + w1)):
+            k = abs(i - j)
+            h = band[k, min(i, j)]
+            if h != 0.0:
+                s += h * (min(max(x0[i] - t * p[i], lower[i]), upper[i]) - x0[i])
+        for r in range(m):
+            i = nb + r
+            s += border[r, j] * (min(max(x0[i] - t * p[i], lower[i]), upper[i]) - x0[i])
+    else:
+        r = j - nb
+        for i in range(nb):
+            s += border[r, i] * (min(max(x0[i] - t * p[i], lower[i]), upper[i]) - x0[i])
+        for c in range(m):
+            i = nb + c
+            s += corner[r, c] * (min(max(x0[i] - t * p[i], lower[i]), upper[i]) - x0[i])
+    return s
+
+
+@numba.njit(cache=True)
+def _projected_search(band, border, corner, x, g, p, lower, upper, d, hd):  # pragma: no cover
+    """Move x to the first minimizer of f along the projected path P(x - t p), t >= 0.
+
+    The path bends at the breakpoints where a component reaches its bound; between them f is a
+    quadratic in t whose slope and curvature are updated in O(w) per breakpoint (Nocedal & Wright,
+    section 16.7's Cauchy point search): zeroing component j of the direction d changes H d by one
+    column of H, and g_j at the breakpoint needs one row of H. Two matvec-sized passes plus a sort:
+    O(n log n) per search, where recomputing H d per segment would be O(n) per bound hit.
+    """
+    n = x.size
+    breaks = np.full(n, np.inf)
+    for i in range(n):
+        if p[i] > 0.0:
+            breaks[i] = max((x[i] - lower[i]) / p[i], 0.0)
+        elif p[i] < 0.0:
+            breaks[i] = max((x[i] - upper[i]) / p[i], 0.0)
+    order = np.argsort(breaks)
+    for i in range(n):
+        d[i] = p[i]
+    matvec(band, border, corner, d, hd)
+    slope = 0.0       # g(x(t)) . d: minus the derivative of f along the path
+    curvature = 0.0   # d . H d
+    for i in range(n):
+        slope += g[i] * d[i]
+        curvature += d[i] * hd[i]
+    t = 0.0
+    final = 0.0
+    for k in range(n + 1):
+        if slope <= 0.0 or curvature <= 0.0:
+            final = t
+            break
+        stop = breaks[order[k]] if k < n else np.inf
+        if t + slope / curvature <= stop:
+            final = t + slope / curvature
+            break
+        slope -= (stop - t) * curvature
+        t = stop
+        j = order[k]
+        delta = d[j]
+        gj = _path_gradient(band, border, corner, g, x, p, lower, upper, t, j)
+        slope -= delta * gj
+        curvature += delta * (delta * (band[0, j] if j < band.shape[1] else
+                                       corner[j - band.shape[1], j - band.shape[1]]) - 2.0 * hd[j])
+        _column_times(band, border, corner, j, -delta, hd)
+        d[j] = 0.0
+    for i in range(n):
+        x[i] = min(max(x[i] - final * p[i], lower[i]), upper[i])
+
+
+@numba.njit(cache=True)
 def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations, precond, gamma,
            counts):  # pragma: no cover - compiled
     n = x.size
@@ -162,6 +264,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
     best = np.empty(n)
     direction = np.empty(n)
     free = np.empty(n, dtype=np.bool_)
+    released = np.empty(n, dtype=np.bool_)
     factored_free = np.zeros(n, dtype=np.bool_)
     diag = np.empty(n)
     for j in range(nb):
@@ -179,32 +282,33 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
         return 3, np.sqrt(gp2)
     tol = max(atol, rtol * np.sqrt(gp2))
 
-    def precondition(force):
+    def precondition(mask, rhs, force):
+        """z = M^-1 rhs on the variables of mask (0 elsewhere)."""
         if precond == 2:
             changed = force
             for i in range(n):
-                if free[i] != factored_free[i]:
+                if mask[i] != factored_free[i]:
                     changed = True
                     break
             if changed:
                 counts[FACTORIZATIONS] += 1
-                if not factor_active(band, border, corner, free, lb, lborder, lcorner):
+                if not factor_active(band, border, corner, mask, lb, lborder, lcorner):
                     return False
                 for i in range(n):
-                    factored_free[i] = free[i]
-            solve_factored(lb, lborder, lcorner, phi, z)
+                    factored_free[i] = mask[i]
+            solve_factored(lb, lborder, lcorner, rhs, z)
             for i in range(n):
-                if not free[i]:
+                if not mask[i]:
                     z[i] = 0.0
         elif precond == 1:
             for i in range(n):
-                z[i] = phi[i] / diag[i] if free[i] else 0.0
+                z[i] = rhs[i] / diag[i] if mask[i] else 0.0
         else:
             for i in range(n):
-                z[i] = phi[i]
+                z[i] = rhs[i] if mask[i] else 0.0
         return True
 
-    if not precondition(True):
+    if not precondition(free, phi, True):
         return 2, np.sqrt(gp2)
     for i in range(n):
         p[i] = z[i]
@@ -230,7 +334,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                     x[i] -= acg * p[i]
                     g[i] -= acg * hp[i]
                 gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
-                if not precondition(False):
+                if not precondition(free, phi, False):
                     return 2, np.sqrt(gp2)
                 zhp = 0.0
                 for i in range(n):
@@ -243,28 +347,11 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 # (a) projected search along p: past the first blocking bound, follow the bent
                 # path P(x - t p) segment by segment to its first minimizer, activating every
                 # bound met on the way (one expansion instead of one per bound)
+                _projected_search(band, border, corner, x, g, p, lower, upper, direction, hp)
+                matvec(band, border, corner, x, g)
+                counts[MATVECS] += 2
                 for i in range(n):
-                    direction[i] = p[i]
-                for _segment in range(n + 1):
-                    matvec(band, border, corner, direction, hp)
-                    counts[MATVECS] += 1
-                    slope = 0.0
-                    curvature = 0.0
-                    for i in range(n):
-                        slope -= g[i] * direction[i]
-                        curvature += direction[i] * hp[i]
-                    if slope >= 0.0 or curvature <= 0.0:
-                        break
-                    tbreak, block = _feasible_step(x, direction, lower, upper)
-                    tstar = -slope / curvature
-                    step = min(tstar, tbreak)
-                    for i in range(n):
-                        x[i] -= step * direction[i]
-                        g[i] -= step * hp[i]
-                    if tstar < tbreak:
-                        break
-                    x[block] = lower[block] if direction[block] > 0.0 else upper[block]
-                    direction[block] = 0.0
+                    g[i] -= b[i]
                 _gradients(x, g, lower, upper, abar, phi, beta, free)
                 # (b) Dostal's projected free-gradient step of fixed length abar
                 for i in range(n):
@@ -277,7 +364,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 # projected, backtracked along the projection arc; kept only if it beats (b), so
                 # the expansion decreases f at least as much as Dostal's step
                 if precond != 0:
-                    if not precondition(False):
+                    if not precondition(free, phi, False):
                         return 2, np.sqrt(gp2)
                     t = 1.0
                     for _arc in range(12):
@@ -298,7 +385,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 for i in range(n):
                     g[i] -= b[i]
                 gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
-                if not precondition(False):
+                if not precondition(free, phi, False):
                     return 2, np.sqrt(gp2)
                 for i in range(n):
                     p[i] = z[i]
@@ -316,10 +403,30 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 elif beta[i] > 0.0:
                     a = min(a, (x[i] - lower[i]) / beta[i])
             for i in range(n):
-                x[i] = min(max(x[i] - a * beta[i], lower[i]), upper[i])
-                g[i] -= a * hp[i]
+                best[i] = min(max(x[i] - a * beta[i], lower[i]), upper[i])
+            f_best = _objective(band, border, corner, b, best, hp)
+            counts[MATVECS] += 1
+            if precond == 2:
+                for i in range(n):
+                    released[i] = free[i] or beta[i] != 0.0
+                    trial[i] = phi[i] + beta[i]
+                if not precondition(released, trial, False):
+                    return 2, np.sqrt(gp2)
+                for i in range(n):
+                    trial[i] = x[i]
+                _projected_search(band, border, corner, trial, g, z, lower, upper, direction, hp)
+                counts[MATVECS] += 2
+                if _objective(band, border, corner, b, trial, hp) < f_best:
+                    for i in range(n):
+                        best[i] = trial[i]
+            for i in range(n):
+                x[i] = best[i]
+            matvec(band, border, corner, x, g)
+            counts[MATVECS] += 1
+            for i in range(n):
+                g[i] -= b[i]
             gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
-            if not precondition(False):
+            if not precondition(free, phi, False):
                 return 2, np.sqrt(gp2)
             for i in range(n):
                 p[i] = z[i]
