@@ -7,7 +7,8 @@
 """
 from sagfree import scenes
 from sagfree.formulation import Problem, Strand
-from sagfree.solvers import Result, optimize, solve
+from sagfree.solvers import SOLVERS, Result, SolverUnavailable, optimize, solve
 
 __version__ = "0.1.0"
-__all__ = ["Problem", "Strand", "Result", "solve", "optimize", "scenes", "__version__"]
+__all__ = ["Problem", "Strand", "Result", "SOLVERS", "SolverUnavailable", "solve", "optimize", "scenes",
+           "__version__"]

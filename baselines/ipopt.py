@@ -1,0 +1,105 @@
+"""The `ipopt` baseline: the same NLP through CasADi's nlpsol('ipopt') (DESIGN section 6).
+
+    minimize R(p) = 1/2 sum w (p - p0)^2   s.t.   c(p) = 0,   lower <= p <= upper,
+
+with c(p) the CasADi expression of the symbolic module (the stencil functions mapped over the strand),
+the exact Hessian of the Lagrangian by CasADi's AD, and MUMPS. Options, chosen so that Ipopt stops
+where ours does:
+- ``nlp_scaling_method none``: c is already unit-free (each row relative to its DOF's weight); with
+  Ipopt's gradient scaling it stops at an unscaled |c|_inf of ~5e-9 instead of 1e-8 or below;
+- ``constr_viol_tol`` = min(tol, 1e-10) and ``tol`` 1e-10: the |c|_inf target with margin;
+- ``acceptable_iter 0``: no "acceptable level" exits;
+- ``bound_relax_factor 0``: Ipopt otherwise relaxes each bound by 1e-8 of its size, and a rest length
+  1e-9 outside its box moves c by ~1e-2 (a rest-length column of dc/dp is ~1e7).
+One Ipopt instance per problem structure (strand size and options) is built and reused for every
+strand of that structure; the strand's numbers are the NLP's parameter vector.
+Status: ``converged`` needs |c|_inf <= tol and the KKT measure of the kkt module <= optimality_tol,
+the same test as ours. Ipopt's tol 1e-10 is often below what rounding allows at a feasible optimum,
+and it then ends with Search_Direction_Becomes_Too_Small or Restoration_Failed at a point that passes
+that test; such a point counts as converged (the message keeps Ipopt's own status).
+Iterations: Ipopt's own count, and its function / gradient / Hessian evaluation counts (``stats()``).
+"""
+from __future__ import annotations
+
+import time
+
+import casadi as ca
+import numpy as np
+
+from sagfree.formulation.problem import Problem
+from sagfree.formulation.symbolic import SymbolicNLP, structure_key
+from sagfree.solvers.kkt import kkt_optimality
+from sagfree.solvers.result import Result, make_result
+
+#: Ipopt return status -> Result status (anything else is "failed")
+RETURN_STATUS = {
+    "Solve_Succeeded": "converged",
+    "Infeasible_Problem_Detected": "infeasible",
+    "Maximum_Iterations_Exceeded": "max_iterations",
+    "Maximum_CpuTime_Exceeded": "max_iterations",
+    "Maximum_WallTime_Exceeded": "max_iterations",
+}
+_SOLVERS: dict[tuple, ca.Function] = {}
+
+
+def available() -> bool:
+    return bool(ca.has_nlpsol("ipopt"))
+
+
+def ipopt_options(tol: float, max_iterations: int, max_seconds: float) -> dict:
+    return {
+        "nlp_scaling_method": "none",
+        "tol": min(tol, 1e-10),
+        "constr_viol_tol": min(tol, 1e-10),
+        "compl_inf_tol": 1e-14,
+        "acceptable_iter": 0,
+        "bound_relax_factor": 0.0,
+        "linear_solver": "mumps",
+        "hessian_approximation": "exact",
+        "max_iter": int(max_iterations),
+        "max_wall_time": float(max_seconds),
+        "print_level": 0,
+        "sb": "yes",
+    }
+
+
+def _solver(problem: Problem, options: dict) -> tuple[ca.Function, SymbolicNLP]:
+    nlp = SymbolicNLP.for_problem(problem)
+    key = (structure_key(problem), tuple(sorted(options.items())))
+    if key not in _SOLVERS:
+        if len(_SOLVERS) >= 16:
+            _SOLVERS.pop(next(iter(_SOLVERS)))
+        _SOLVERS[key] = ca.nlpsol("sagfree_ipopt", "ipopt",
+                                  {"x": nlp.p, "p": nlp.data, "f": nlp.objective, "g": nlp.constraint},
+                                  {"ipopt": options, "print_time": False, "error_on_fail": False})
+    return _SOLVERS[key], nlp
+
+
+def solve_ipopt(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
+                max_iterations: int = 3000, max_seconds: float = 600.0, p_start=None) -> Result:
+    """Solve ``problem`` with Ipopt from p0 (or ``p_start``); see the module docstring."""
+    clock = time.perf_counter()
+    solver, nlp = _solver(problem, ipopt_options(tol, max_iterations, max_seconds))
+    start = problem.p0 if p_start is None else np.clip(np.asarray(p_start, dtype=float), problem.lower,
+                                                       problem.upper)
+    n_constraints = int(problem.free.sum())
+    solution = solver(x0=start, p=nlp.data_vector(problem), lbx=problem.lower, ubx=problem.upper,
+                      lbg=np.zeros(n_constraints), ubg=np.zeros(n_constraints))
+    stats = solver.stats()
+    p = np.clip(np.asarray(solution["x"]).ravel(), problem.lower, problem.upper)
+    return_status = stats.get("return_status", "unknown")
+    residual = float(np.abs(problem.residual(p)).max(initial=0.0))
+    optimality = kkt_optimality(problem, p)
+    status = RETURN_STATUS.get(return_status, "failed")
+    if status in ("converged", "failed"):
+        status = "converged" if residual <= tol and optimality <= optimality_tol else "failed"
+    counts = {
+        "ipopt": int(stats.get("iter_count", 0)),
+        "constraint_evaluations": int(stats.get("n_call_nlp_g", 0)),
+        "jacobian_evaluations": int(stats.get("n_call_nlp_jac_g", 0)),
+        "hessian_evaluations": int(stats.get("n_call_nlp_hess_l", 0)),
+    }
+    message = (f"Ipopt: {return_status} after {counts['ipopt']} iterations; |c|_inf = {residual:.2e} "
+               f"(target {tol:g}), KKT optimality {optimality:.2e} (target {optimality_tol:g})")
+    history = [float(v) for v in stats.get("iterations", {}).get("inf_pr", [])]
+    return make_result(problem, p, "ipopt", status, message, counts, time.perf_counter() - clock, history)

@@ -1,0 +1,125 @@
+"""The `penalty-gn` baseline: the predecessor method (Takahashi & Batty, "Rest shape optimization for
+sag-free discrete elastic rods", CGF; DESIGN section 6).
+
+Rest shape only (rest lengths, curvatures, twists; stiffness stays as specified), and no hard
+constraints: Gauss-Newton on
+
+    F(p) = rho/2 f^T M^-1 f / (m g^2) + R(p) + kappa/2 sum_j (max(0, p_j - upper_j)^2 + max(0, lower_j - p_j)^2)
+
+with f = S f(q*, p) the residual force on the free DOFs, M the lumped masses on positions and the
+edge inertias rho_s pi r^4 l / 2 on the twist angles, m g^2 (strand mass times g^2) making the force
+term unit-free, and quadratic penalties for the boxes. In terms of the unit-free residual
+c = D^-1 S f (D: m_i g on positions, m_edge l g on angles) the force term is rho/2 sum_i mu_i c_i^2
+with mu_i = D_i^2 / (M_i m g^2): the vertex's share of the strand mass on positions,
+2 (m_edge / m) (l / r)^2 on angles.
+
+The Gauss-Newton normal matrix rho J^T diag(mu) J + diag(w) + kappa diag(bound violated) is banded; it
+is factored by LAPACK's banded Cholesky (with a relative Levenberg-Marquardt damping of 1e-13 of its
+diagonal, as in our solver) and an Armijo backtracking line search on F sets the step.
+
+A minimizer of F is not an equilibrium: where the boxes bind (or gravity needs stiffness) the force
+term is only traded off against the penalties, so a residual force remains and boxes may be violated.
+The Result reports it as it is: status ``converged`` only if |c|_inf <= tol, otherwise ``failed`` with
+the residual and the largest box violation in the message. Result.p is in the caller's Problem layout
+(stiffness entries at p0) and is not clipped into the box.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.linalg
+
+from sagfree.formulation import dofs
+from sagfree.formulation.problem import Problem
+from sagfree.solvers.banded import gram
+from sagfree.solvers.result import Result, make_result
+
+REST_BLOCKS = ("rest_length", "rest_curvature", "rest_twist")
+ARMIJO = 1e-4
+DAMPING = 1e-13
+
+
+def force_weights(problem: Problem) -> np.ndarray:
+    """mu_i = D_i^2 / (M_i m g^2) per free DOF (see the module docstring)."""
+    strand, n = problem.strand, problem.n_vertices
+    g = float(np.linalg.norm(problem.gravity)) or dofs.STANDARD_GRAVITY
+    edge_mass = strand.density * np.pi * strand.radius**2 * problem.edge_lengths
+    inertia = np.empty(dofs.dof_count(n))
+    inertia[dofs.position_index(n)] = problem.masses[:, None]
+    inertia[dofs.theta_index(n)] = 0.5 * edge_mass * strand.radius**2
+    mu = problem.row_scale**2 / (inertia * edge_mass.sum() * g**2)
+    return mu[problem.free]
+
+
+def _objective(rest: Problem, p, c, mu, rho, kappa) -> float:
+    over = np.maximum(p - rest.layout.upper, 0.0) + np.maximum(rest.layout.lower - p, 0.0)
+    return 0.5 * rho * float(mu @ (c * c)) + rest.objective(p) + 0.5 * kappa * float(over @ over)
+
+
+def _to_caller_layout(problem: Problem, rest: Problem, p_rest: np.ndarray) -> np.ndarray:
+    p = problem.p0
+    for block, ix in rest.blocks.items():
+        if block in problem.blocks:
+            p[problem.blocks[block]] = p_rest[ix]
+    return p
+
+
+def solve_penalty_gn(problem: Problem, tol: float = 1e-8, force_weight: float = 1e6,
+                     box_weight: float = 1e6, max_iterations: int = 200, rtol: float = 1e-12) -> Result:
+    """Minimize the predecessor's penalty objective over the rest shape from p0 (module docstring).
+
+    force_weight: rho; box_weight: kappa; stops when a step changes F by less than rtol |F|."""
+    clock = time.perf_counter()
+    rest = problem.with_options(stiffness="fixed",
+                                optimize=tuple(b for b in REST_BLOCKS if b in problem.options["optimize"]))
+    lower, upper, w = rest.layout.lower, rest.layout.upper, rest.layout.weights
+    mu = force_weights(rest)
+    p = rest.p0
+    c = rest.residual(p)
+    value = _objective(rest, p, c, mu, force_weight, box_weight)
+    counts = dict(gauss_newton=0, line_search=0)
+    history = [float(np.abs(c).max(initial=0.0))]
+    reason = f"reached max_iterations = {max_iterations}"
+    while counts["gauss_newton"] < max_iterations:
+        counts["gauss_newton"] += 1
+        J = rest.jacobian(p)
+        violated = (p > upper) | (p < lower)
+        over = np.maximum(p - upper, 0.0) - np.maximum(lower - p, 0.0)
+        gradient = force_weight * (J.T @ (mu * c)) + w * (p - rest.layout.p0) + box_weight * over
+        weighted = J.multiply(np.sqrt(mu)[:, None]).tocsc()
+        hessian = gram(weighted, w + box_weight * violated, force_weight, 0).band
+        hessian[0] *= 1.0 + DAMPING
+        try:
+            step = scipy.linalg.solveh_banded(hessian, -gradient, lower=True)
+        except np.linalg.LinAlgError:
+            reason = "the Gauss-Newton matrix lost positive definiteness"
+            break
+        slope, alpha = float(gradient @ step), 1.0
+        for _ in range(40):
+            counts["line_search"] += 1
+            trial = p + alpha * step
+            c_trial = rest.residual(trial)
+            trial_value = _objective(rest, trial, c_trial, mu, force_weight, box_weight)
+            if trial_value <= value + ARMIJO * alpha * slope:
+                break
+            alpha *= 0.5
+        else:
+            reason = "the line search found no decrease"
+            break
+        decrease = value - trial_value
+        p, c, value = trial, c_trial, trial_value
+        history.append(float(np.abs(c).max(initial=0.0)))
+        if decrease <= rtol * abs(value):
+            reason = f"converged to a minimizer of the penalty objective (F = {value:.6g})"
+            break
+    residual = history[-1]
+    violation = float(np.max(np.maximum(p - upper, 0.0) + np.maximum(lower - p, 0.0), initial=0.0))
+    status = "converged" if residual <= tol else "failed"
+    message = (f"penalty Gauss-Newton {reason} after {counts['gauss_newton']} iterations; "
+               f"|c|_inf = {residual:.3g}" + ("" if status == "converged" else
+                                              f" > {tol:g}: the rest shape alone, with penalized boxes, "
+                                              "leaves this residual force")
+               + f"; largest box violation {violation:.3g}")
+    return make_result(problem, _to_caller_layout(problem, rest, p), "penalty-gn", status, message, counts,
+                       time.perf_counter() - clock, history)

@@ -1,0 +1,100 @@
+"""First-order optimality of the bound-constrained problem, measured the same way for every solver.
+
+    minimize R(p)  s.t.  c(p) = 0,  lower <= p <= upper;   Lagrangian gradient  grad R + J^T lam.
+
+A rest-length entry moves c about 1e7 times more than a stiffness multiplier, so gradients are
+compared in the scaled projected gradient pi(p, g) = ||P(p - g / h) - p||_inf with h_j = w_j +
+||J_{:,j}||^2 (the Gauss-Newton diagonal): a Newton-like step in the units of p, the same for every
+block, zero exactly at a KKT point.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
+
+from sagfree.formulation.problem import Problem
+
+
+def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
+    """||P(p - gradient / scale) - p||_inf: zero exactly at a KKT point of a box-constrained problem."""
+    return float(np.abs(np.clip(p - gradient / scale, lower, upper) - p).max(initial=0.0))
+
+
+def column_norms(J: sp.spmatrix) -> np.ndarray:
+    """||J_{:,j}||^2 per parameter."""
+    return np.asarray(J.multiply(J).sum(axis=0)).ravel()
+
+
+def gradient_scale(weights: np.ndarray, J: sp.csc_matrix) -> np.ndarray:
+    """h_j = w_j + ||J_{:,j}||^2, the diagonal of the Gauss-Newton Hessian at mu = 1."""
+    return weights + column_norms(J) + 1e-300
+
+
+def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -> np.ndarray:
+    """lam minimizing the scaled Lagrangian gradient on the free variables,
+    ||(grad R + J^T lam)_F / sqrt(h_F)||_2 (normal equations, sparse LU; a feasible p's multipliers)."""
+    free = (p > lower) & (p < upper)
+    Js = (J @ sp.diags(1.0 / np.sqrt(scale)))[:, free].tocsr()
+    rs = (regularizer_gradient / np.sqrt(scale))[free]
+    normal = (Js @ Js.T).tocsc() + sp.identity(J.shape[0], format="csc") * 1e-14
+    try:
+        return -sp.linalg.splu(normal).solve(Js @ rs)
+    except RuntimeError:  # singular: keep the caller's multipliers
+        return np.full(J.shape[0], np.nan)
+
+
+def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float:
+    """Distance of p from a KKT point, in the units of p (zero exactly at a KKT point); see
+    ``kkt_step``."""
+    return kkt_step(problem, p, near)[1]
+
+
+def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[np.ndarray, float, np.ndarray]:
+    """(step d, distance of p from a KKT point in the units of p, multipliers lam).
+
+    The largest entry of the equality-constrained SQP step with the regularizer's Hessian
+    W = diag(w) on a working set F of free variables,
+
+        [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c],
+
+    where F starts as the variables farther than ``near`` (relative to the box width) from their
+    bounds (interior-point solvers stop a hair inside them) and is corrected (at most 10 times) like
+    an active-set method: a bound variable whose multiplier (grad R + J^T lam)_j has the wrong sign
+    (< 0 at a lower bound, > 0 at an upper one) is released, and a free variable within ``near`` of a
+    bound that the step pushes through is fixed there. Any wrong sign left at the end counts too,
+    scaled by h as in ``scaled_projected_gradient``.
+
+    Unlike the scaled projected gradient, this sees directions in which c can be kept by trading
+    one parameter against another (the strand multiplier S against the rest shape): there the
+    gradient step g / h is tiny, because h is dominated by ||J_{:,j}||^2, while the constrained
+    step is not.
+    """
+    J = sp.csc_matrix(problem.jacobian(p))
+    c, regularizer_gradient = problem.residual(p), problem.objective_gradient(p)
+    w, lower, upper = problem.layout.weights, problem.layout.lower, problem.layout.upper
+    slack = near * (upper - lower)
+    at_lower = p - lower <= upper - p
+    active = (p - lower <= slack) | (upper - p <= slack)
+    released = np.zeros_like(active)
+    for _ in range(10):
+        free = ~active
+        size = int(free.sum())
+        system = sp.bmat([[sp.diags(w[free]), J[:, free].T], [J[:, free], None]], format="csc")
+        try:
+            solution = sp.linalg.splu(system).solve(-np.concatenate([regularizer_gradient[free], c]))
+        except RuntimeError:  # J_F rank deficient: more constraints than free directions
+            return np.zeros_like(p), float("inf"), np.zeros_like(c)
+        step = np.zeros_like(p)
+        step[free] = solution[:size]
+        gradient = regularizer_gradient + J.T @ solution[size:]  # >= 0 at a lower bound, <= 0 at an upper
+        wrong = active & np.where(at_lower, gradient < 0.0, gradient > 0.0)
+        crossing = free & ~released & (((p + step < lower) & (p - lower <= slack)) |
+                                       ((p + step > upper) & (upper - p <= slack)))
+        if not (wrong.any() or crossing.any()):
+            break
+        released |= wrong
+        active = (active | crossing) & ~wrong
+    wrong_size = np.where(wrong, np.abs(gradient), 0.0) / gradient_scale(w, J)
+    distance = max(float(np.abs(step).max(initial=0.0)), float(wrong_size.max(initial=0.0)))
+    return step, distance, solution[size:]

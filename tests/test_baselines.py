@@ -1,0 +1,127 @@
+"""Baselines against our solver: Ipopt, OSQP-SQP, penalty-gn, naive; the KKT measure they share."""
+import casadi as ca
+import numpy as np
+import pytest
+
+import sagfree
+from sagfree.formulation.symbolic import SymbolicNLP
+from sagfree.solvers.kkt import kkt_optimality
+
+SMALL_AND_MEDIUM = {
+    "horizontal": lambda: sagfree.scenes.horizontal(),
+    "curly": lambda: sagfree.scenes.curly(n=40),
+    "groom strand (100 vertices)": lambda: sagfree.scenes.groom(1, 100, seed=0)[0],
+}
+
+
+def dense_kkt_step(problem, p):
+    """Independent dense version of the KKT measure: the equality-constrained step with diag(w) on
+    the variables strictly inside their box, and the wrong-signed bound multipliers."""
+    J, c, w = problem.jacobian(p).toarray(), problem.residual(p), problem.layout.weights
+    free = (p > problem.lower) & (p < problem.upper)
+    F = np.flatnonzero(free)
+    K = np.block([[np.diag(w[F]), J[:, F].T], [J[:, F], np.zeros((J.shape[0], J.shape[0]))]])
+    solution = np.linalg.solve(K, -np.concatenate([w[F] * (p - problem.p0)[F], c]))
+    gradient = w * (p - problem.p0) + J.T @ solution[F.size:]
+    wrong = np.where(p <= problem.lower, np.maximum(-gradient, 0), np.where(p >= problem.upper,
+                                                                           np.maximum(gradient, 0), 0))
+    h = w + (J**2).sum(axis=0)
+    return max(np.abs(solution[:F.size]).max(), (wrong / h).max())
+
+
+def test_symbolic_nlp_is_the_problem_constraint():
+    problem = sagfree.Problem(sagfree.scenes.helix(n=20))
+    nlp = SymbolicNLP.for_problem(problem)
+    f = ca.Function("f", [nlp.p, nlp.data], [nlp.constraint, nlp.objective, ca.jacobian(nlp.constraint, nlp.p)])
+    p = problem.p0 + 0.3 * np.random.default_rng(0).random(problem.n_parameters) * (problem.upper - problem.p0)
+    c, objective, J = (np.asarray(v) for v in f(p, nlp.data_vector(problem)))
+    residual = problem.residual(p)
+    assert np.abs(c.ravel() - residual).max() <= 1e-12 * np.abs(residual).max()
+    assert objective.item() == pytest.approx(problem.objective(p))
+    reference = problem.jacobian(p).toarray()
+    assert np.abs(J - reference).max() <= 1e-12 * np.abs(reference).max()
+    # a strand of the same size and options reuses the expression
+    other = sagfree.Problem(sagfree.scenes.helix(n=20, radius=0.02))
+    assert SymbolicNLP.for_problem(other) is nlp
+
+
+def test_kkt_measure_matches_a_dense_reference_and_separates_optimal_from_feasible():
+    problem = sagfree.Problem(sagfree.scenes.curly(n=30), stiffness="strand")
+    optimum = sagfree.solve(problem).p
+    # feasible but not optimal: the optimum of a different regularizer
+    other = sagfree.solve(problem.with_options(weights={"rest_twist": 100.0})).p
+    assert np.abs(problem.residual(other)).max() <= 1e-8
+    for p in (optimum, other):
+        assert kkt_optimality(problem, p) == pytest.approx(dense_kkt_step(problem, p), rel=1e-4, abs=1e-9)
+    assert kkt_optimality(problem, optimum) < 1e-6
+    assert kkt_optimality(problem, other) > 1e-3
+
+
+@pytest.mark.parametrize("stiffness", ["element", "strand"])
+@pytest.mark.parametrize("scene", SMALL_AND_MEDIUM)
+def test_ipopt_and_ours_reach_the_same_optimum(scene, stiffness):
+    problem = sagfree.Problem(SMALL_AND_MEDIUM[scene](), stiffness=stiffness)
+    ours, ipopt = sagfree.solve(problem, "asc"), sagfree.solve(problem, "ipopt")
+    for result in (ours, ipopt):
+        assert result.status == "converged", result.message
+        assert np.abs(problem.residual(result.p)).max() <= 1e-8
+        assert np.all(result.p >= problem.lower) and np.all(result.p <= problem.upper)
+    assert ipopt.objective == pytest.approx(ours.objective, rel=1e-6)
+    assert ipopt.iterations["ipopt"] > 0 and ipopt.iterations["hessian_evaluations"] > 0
+    assert "Ipopt:" in ipopt.message
+
+
+@pytest.mark.parametrize("scene", SMALL_AND_MEDIUM)
+def test_osqp_sqp_converges_to_our_optimum(scene):
+    problem = sagfree.Problem(SMALL_AND_MEDIUM[scene]())
+    ours, sqp = sagfree.solve(problem, "asc"), sagfree.solve(problem, "osqp")
+    assert sqp.status == "converged", sqp.message
+    assert np.abs(problem.residual(sqp.p)).max() <= 1e-8
+    assert sqp.objective == pytest.approx(ours.objective, rel=1e-6)
+    assert kkt_optimality(problem, sqp.p) <= 1e-6
+    assert sqp.iterations["sqp"] > 1 and sqp.iterations["admm"] > sqp.iterations["sqp"]
+
+
+@pytest.mark.parametrize("scene", ["horizontal", "curly"])
+def test_penalty_gn_leaves_a_residual_between_ours_and_naive(scene):
+    problem = sagfree.Problem(SMALL_AND_MEDIUM[scene]())
+    ours, predecessor, naive = (sagfree.solve(problem, s) for s in ("asc", "penalty-gn", "naive"))
+    assert ours.residual_inf < predecessor.residual_inf < naive.residual_inf
+    assert ours.max_force < predecessor.max_force < naive.max_force
+    assert predecessor.status == "failed" and "residual" in predecessor.message
+    # rest shape only: every stiffness multiplier keeps its specified value
+    assert all(s["max"] == 1.0 and s["stiffened"] == 0.0 for s in predecessor.stiffening.values())
+    assert predecessor.rest_change["rest_curvature"]["max"] > 0
+    assert predecessor.iterations["gauss_newton"] > 0
+
+
+def test_naive_residual_is_gravity():
+    problem = sagfree.Problem(sagfree.scenes.horizontal())
+    naive = sagfree.solve(problem, "naive")
+    assert np.array_equal(naive.p, problem.p0)
+    assert naive.residual_inf == pytest.approx(1.0)  # c = D^-1 f_gravity on a free vertex
+    assert naive.status == "failed"
+
+
+def test_missing_plugin_is_reported_before_any_work(monkeypatch):
+    import sagfree.baselines.ipopt as ipopt_module
+
+    monkeypatch.setattr(ipopt_module, "available", lambda: False)
+    problem = sagfree.Problem(sagfree.scenes.horizontal())
+    with pytest.raises(sagfree.SolverUnavailable, match="Ipopt plugin.*pip install"):
+        sagfree.solve(problem, "ipopt")
+    with pytest.raises(sagfree.SolverUnavailable, match="ipopt"):
+        sagfree.optimize([sagfree.scenes.horizontal()], solver="ipopt", jobs=1)
+    with pytest.raises(ValueError, match="unknown solver 'ipop'.*asc, ipopt, osqp, penalty-gn, naive"):
+        sagfree.solve(problem, "ipop")
+
+
+@pytest.mark.parametrize("solver", list(sagfree.SOLVERS))
+def test_every_solver_runs_through_optimize(solver):
+    strands = [sagfree.scenes.horizontal(n=12), sagfree.scenes.helix(n=12)]
+    results = sagfree.optimize(strands, solver=solver, jobs=2)
+    assert [r.solver for r in results] == [solver, solver]
+    for strand, result in zip(strands, results):
+        problem = sagfree.Problem(strand)
+        assert result.p.shape == (problem.n_parameters,)
+        assert result.residual_inf == pytest.approx(np.abs(problem.residual(result.p)).max())
