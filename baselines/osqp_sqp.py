@@ -105,11 +105,14 @@ def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lo
 
 
 def solve_osqp(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
-               max_iterations: int = 100, eps: float = 1e-5, max_admm: int = 50_000) -> Result:
+               max_iterations: int = 50, eps: float = 1e-5, max_admm: int = 50_000,
+               max_seconds: float = 60.0) -> Result:
     """Solve ``problem`` by SQP with OSQP subproblems from p0; see the module docstring.
 
     eps: OSQP's absolute and relative tolerance; polishing then refines the ADMM point on its active
-    set, so the steps are far more accurate than eps whenever polishing succeeds."""
+    set, so the steps are far more accurate than eps whenever polishing succeeds. max_admm: ADMM
+    iterations per OSQP solve. max_seconds: wall-time budget of the whole SQP (checked between
+    iterations): a stalled SQP on a 50-vertex strand otherwise spends minutes in ADMM."""
     clock = time.perf_counter()
     lower, upper = problem.layout.lower, problem.layout.upper
     p = problem.p0
@@ -130,8 +133,11 @@ def solve_osqp(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6
         if violation <= tol and optimality <= optimality_tol:
             return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT optimality "
                           f"{optimality:.2e} <= {optimality_tol:g} after {counts['sqp']} SQP iterations")
-        if counts["sqp"] >= max_iterations:
-            return finish("max_iterations", f"stopped after {max_iterations} SQP iterations with "
+        elapsed = time.perf_counter() - clock
+        if counts["sqp"] >= max_iterations or elapsed >= max_seconds:
+            limit = (f"{max_iterations} SQP iterations" if counts["sqp"] >= max_iterations
+                     else f"{elapsed:.0f} s (max_seconds)")
+            return finish("max_iterations", f"stopped after {limit} with "
                           f"|c|_inf = {violation:.3g} and KKT optimality {optimality:.3g}; the OSQP "
                           f"subproblems reached their tolerance in {counts['sqp'] - counts['polish_failures']} "
                           "of them (polished)")

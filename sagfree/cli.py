@@ -7,15 +7,27 @@ from __future__ import annotations
 import argparse
 import sys
 
+from sagfree.solvers.registry import SOLVERS
+
+
+def _solver_list(text: str) -> str:
+    unknown = [s for s in (t.strip() for t in text.split(",")) if s and s not in SOLVERS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown solver(s) {', '.join(unknown)}; choose from "
+                                         f"{', '.join(SOLVERS)}")
+    return text
+
 
 def _demo(args) -> int:
     from sagfree.reports.demo import run_demo
 
-    summary = run_demo(args.out, progress=not args.quiet, jobs=args.jobs)
+    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
+    summary = run_demo(args.out, progress=not args.quiet, jobs=args.jobs, solvers=solvers,
+                       baseline_strands=args.baseline_strands)
     print(f"groom: {summary.strands} strands, {summary.vertices} vertices")
     for solver, statuses in summary.statuses.items():
         counts = ", ".join(f"{k} {v}" for k, v in statuses.items() if v)
-        print(f"{solver:6} {summary.wall_time[solver]:7.2f} s   {counts}")
+        print(f"{solver:10} {summary.wall_time[solver]:7.2f} s   {counts}")
     print(f"derivative checks: {summary.checks_passed}/{summary.checks_total} passed")
     print(f"wrote {summary.report}")
     return 0 if summary.checks_passed == summary.checks_total else 1
@@ -46,10 +58,15 @@ def parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="the main job on the embedded default groom, with a report",
                           description="Solve every strand of the embedded default groom with our solver "
-                          "and the naive baseline, verify the derivatives, write report.md.")
+                          "and the naive baseline, the other baselines on the first strands, verify the "
+                          "derivatives, write report.md.")
     demo.add_argument("--out", default="sagfree-demo", help="output directory (default: sagfree-demo)")
     demo.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     demo.add_argument("--quiet", action="store_true", help="no progress bars")
+    demo.add_argument("--solvers", default=",".join(SOLVERS), type=_solver_list,
+                      help=f"comma-separated solvers (default: all: {','.join(SOLVERS)}); asc always runs")
+    demo.add_argument("--baseline-strands", type=int, default=6,
+                      help="strands the baselines other than naive solve (default 6)")
     demo.set_defaults(run=_demo)
 
     check = sub.add_parser("check", help="Jacobian verification table; non-zero exit on any mismatch",
