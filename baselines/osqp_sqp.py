@@ -30,6 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from sagfree.formulation.problem import Problem
+from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
 from sagfree.solvers.kkt import gradient_scale, kkt_optimality
 from sagfree.solvers.result import Result, make_result
 
@@ -104,7 +105,7 @@ def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lo
     return solution, iterations, x[:n] * scale, np.asarray(solution.y)[:m], float(np.abs(x[n:]).sum())
 
 
-def solve_osqp(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
+def solve_osqp(problem: Problem, tol: float = 1e-8, optimality_tol: float = KKT_TOLERANCE,
                max_iterations: int = 50, eps: float = 1e-5, max_admm: int = 50_000,
                max_seconds: float = 60.0) -> Result:
     """Solve ``problem`` by SQP with OSQP subproblems from p0; see the module docstring.
@@ -131,14 +132,14 @@ def solve_osqp(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6
         violation = history[-1]
         optimality = kkt_optimality(problem, p) if violation <= tol else np.inf
         if violation <= tol and optimality <= optimality_tol:
-            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT optimality "
+            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance "
                           f"{optimality:.2e} <= {optimality_tol:g} after {counts['sqp']} SQP iterations")
         elapsed = time.perf_counter() - clock
         if counts["sqp"] >= max_iterations or elapsed >= max_seconds:
             limit = (f"{max_iterations} SQP iterations" if counts["sqp"] >= max_iterations
                      else f"{elapsed:.0f} s (max_seconds)")
             return finish("max_iterations", f"stopped after {limit} with "
-                          f"|c|_inf = {violation:.3g} and KKT optimality {optimality:.3g}; the OSQP "
+                          f"|c|_inf = {violation:.3g} and KKT distance {optimality:.3g}; the OSQP "
                           f"subproblems reached their tolerance in {counts['sqp'] - counts['polish_failures']} "
                           "of them (polished)")
         counts["sqp"] += 1

@@ -23,7 +23,7 @@ Scale: a rest-length entry moves c about 1e7 times more than a stiffness multipl
     ``optimality_tol``) or when the model predicts no decrease above the rounding of L.
 Converged: |c|_inf <= tol and pi of the gradient of the Lagrangian R + lam^T c (updated lam)
     is <= optimality_tol, confirmed by the KKT distance of the kkt module (the constrained step
-    with the regularizer's Hessian), the measure every solver's status uses. Where pi is small but
+    with the regularizer's Hessian) <= kkt.TOLERANCE, the measure every solver's status uses. Where pi is small but
     the distance is not (a flat valley along the bilinear fibres stiffness x (kbar - kappa*): on
     `horizontal` in element mode pi stopped 3.6e-3 from Ipopt's optimum with R 3.8e-7 too high),
     _polish takes those constrained steps (300 of them there, 1.5 s; none on the default groom).
@@ -42,6 +42,7 @@ import scipy.sparse as sp
 from sagfree.formulation.problem import Problem
 
 from .banded import gram
+from .kkt import TOLERANCE as KKT_TOLERANCE
 from .kkt import (column_norms, gradient_scale, kkt_step, least_squares_multipliers,
                   scaled_projected_gradient)
 from .mprgp import solve_box_qp
@@ -87,13 +88,15 @@ class _Model:
 def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
               max_gauss_newton: int = 600, mu0: float = 10.0, mu_growth: float = 10.0,
               omega0: float = 1.0, preconditioner: str = "cholesky", qp_rtol: float = 1e-10,
-              start: str = "auto", p_start=None) -> Result:
+              start: str = "auto", p_start=None, confirm: bool = True) -> Result:
     """Solve ``problem`` with our augmented Lagrangian solver; see the module docstring.
 
     tol: |c|_inf target (unit-free, relative to each DOF's weight). optimality_tol: projected gradient
     of the Lagrangian. preconditioner: "cholesky" (active-set Cholesky), "jacobi" or "none".
     start: "auto" starts per-element stiffness from the strand-stiffness solution (see
-    _strand_mode_start), "p0" from p0; p_start overrides both.
+    _strand_mode_start), "p0" from p0; p_start overrides both. confirm: check convergence with the KKT
+    distance of the kkt module and polish if needed (a sparse LU, ~7 ms on a 100-vertex strand;
+    the strand-stiffness start skips it).
     """
     clock = time.perf_counter()
     history: list[float] = []
@@ -180,18 +183,21 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
             kkt = scaled_projected_gradient(p, regularizer_gradient + J.T @ estimate, scale, lower, upper)
             if kkt < optimality:
                 lam, optimality = estimate, kkt
-        if violation <= tol and optimality <= optimality_tol:
+        converged = violation <= tol and optimality <= optimality_tol
+        measure = f"scaled projected gradient {optimality:.2e} <= {optimality_tol:g}"
+        if converged and confirm:
             # the scaled gradient can be small in a flat valley away from the optimum: confirm with
-            # the constrained step of the kkt module, and finish with those steps if needed
-            p, c, optimality = _polish(problem, p, c, tol, optimality_tol, counts)
+            # the KKT distance of the kkt module, and take its constrained steps if needed
+            p, c, distance = _polish(problem, p, c, counts)
             J = problem.jacobian(p)
             scale = gradient_scale(model.w, J)
             violation = float(np.abs(c).max(initial=0.0))
             history.append(violation)
-        if violation <= tol and optimality <= optimality_tol:
-            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT optimality "
-                          f"{optimality:.2e} <= {optimality_tol:g} after {counts['outer']} outer and "
-                          f"{counts['gauss_newton']} Gauss-Newton iterations")
+            converged = violation <= tol and distance <= KKT_TOLERANCE
+            measure = f"KKT distance {distance:.2e} <= {KKT_TOLERANCE:g}"
+        if converged:
+            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and {measure} after "
+                          f"{counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
         if violation > tol and violation > 0.25 * previous_violation:
             mu *= mu_growth
             if mu >= 1e4 * mu0:
@@ -204,14 +210,14 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer")
 
 
-def _polish(problem: Problem, p, c, tol, optimality_tol, counts, max_steps: int = 20):
+def _polish(problem: Problem, p, c, counts, max_steps: int = 20):
     """Constrained steps of the kkt module from a feasible p that the scaled projected gradient
     calls optimal: SQP steps with the regularizer's Hessian on the working set, backtracked on the
-    l1 merit R + nu |c|_1. Returns (p, c, KKT distance) once the distance is below optimality_tol or
-    a step fails to help (p unchanged then)."""
+    l1 merit R + nu |c|_1. Returns (p, c, KKT distance) once the distance is below KKT_TOLERANCE, a
+    step fails to decrease the merit, or after max_steps."""
     step, distance, lam = kkt_step(problem, p)
     for _ in range(max_steps):
-        if distance <= optimality_tol:
+        if distance <= KKT_TOLERANCE:
             break
         counts["polish"] = counts.get("polish", 0) + 1
         nu = 10.0 * float(np.abs(lam).max(initial=1.0))
@@ -253,7 +259,8 @@ def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.nd
     if bounds["strand_stiffness"][0] > bounds["strand_stiffness"][1]:
         return problem.p0, []  # no common multiplier fits every element's box
     strand_problem = problem.with_options(stiffness="strand", bounds=bounds, weights=weights)
-    result = solve_alm(strand_problem, start="p0", max_gauss_newton=START_GAUSS_NEWTON, **options)
+    result = solve_alm(strand_problem, start="p0", max_gauss_newton=START_GAUSS_NEWTON, confirm=False,
+                       **options)
     for key, value in result.iterations.items():
         counts[key] += value
     if result.status not in ("converged", "max_iterations"):

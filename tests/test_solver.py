@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 import sagfree
+from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
 from sagfree.solvers.kkt import kkt_optimality
 from sagfree.solvers.result import STIFFENED
 
@@ -35,7 +36,7 @@ def check_solution(problem, result):
     assert result.residual_inf == pytest.approx(np.abs(problem.residual(result.p)).max())
     assert np.all(result.p >= problem.lower) and np.all(result.p <= problem.upper)
     assert kkt_violation(problem, result.p) < 1e-5
-    assert kkt_optimality(problem, result.p) <= 1e-6  # the constrained-step measure (kkt module)
+    assert kkt_optimality(problem, result.p) <= KKT_TOLERANCE  # the constrained-step measure
     assert result.objective == pytest.approx(problem.objective(result.p))
 
 
