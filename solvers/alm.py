@@ -22,11 +22,11 @@ Scale: a rest-length entry moves c about 1e7 times more than a stiffness multipl
     stops when pi of the gradient of L is below omega_k (tightening by 10 per outer iteration down to
     ``optimality_tol``) or when the model predicts no decrease above the rounding of L.
 Converged: |c|_inf <= tol and pi of the gradient of the Lagrangian R + lam^T c (updated lam)
-    is <= optimality_tol, confirmed by the KKT distance of the kkt module (the constrained step
-    with the regularizer's Hessian) <= kkt.TOLERANCE, the measure every solver's status uses. Where pi is small but
-    the distance is not (a flat valley along the bilinear fibres stiffness x (kbar - kappa*): on
-    `horizontal` in element mode pi stopped 3.6e-3 from Ipopt's optimum with R 3.8e-7 too high),
-    _polish takes those constrained steps (300 of them there, 1.5 s; none on the default groom).
+    is <= optimality_tol, confirmed by the KKT distance of the kkt module (the constrained step with
+    the regularizer's Hessian) <= kkt.TOLERANCE, the measure every solver's status uses. Where pi is
+    small but the distance is not (a flat valley along the bilinear fibres stiffness x
+    (kbar - kappa*): on `horizontal` in element mode pi stopped 3.6e-3 from Ipopt's optimum with R
+    3.8e-7 too high), _polish takes those constrained steps (counted as ``polish``).
 Infeasible: once mu has grown 10^4-fold, the best box-constrained Gauss-Newton step for |c|^2 alone
     reduces |c| by less than 1%: p is a stationary point of the constraint violation inside the box.
     The message names the bounds that bind (the blocks and vertices whose relaxation would reduce
@@ -103,7 +103,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     lower, upper = problem.layout.lower, problem.layout.upper
     model = _Model(problem)
     counts = dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, factorizations=0,
-                  line_search=0)
+                  line_search=0, polish=0)
     if p_start is None:
         p_start = problem.p0
         if start == "auto" and problem.layout.stiffness == "element" and any(
@@ -219,7 +219,7 @@ def _polish(problem: Problem, p, c, counts, max_steps: int = 20):
     for _ in range(max_steps):
         if distance <= KKT_TOLERANCE:
             break
-        counts["polish"] = counts.get("polish", 0) + 1
+        counts["polish"] += 1
         nu = 10.0 * float(np.abs(lam).max(initial=1.0))
         merit = problem.objective(p) + nu * float(np.abs(c).sum())
         for alpha in 0.5 ** np.arange(20):

@@ -27,8 +27,12 @@ def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
 
 
 def column_norms(J: sp.spmatrix) -> np.ndarray:
-    """||J_{:,j}||^2 per parameter."""
-    return np.asarray(J.multiply(J).sum(axis=0)).ravel()
+    """||J_{:,j}||^2 per parameter (summed per CSC column: J.multiply(J) cost 0.2 ms per call)."""
+    J = sp.csc_matrix(J)
+    norms = np.zeros(J.shape[1])
+    filled = np.diff(J.indptr) > 0
+    norms[filled] = np.add.reduceat(J.data**2, J.indptr[:-1][filled])
+    return norms
 
 
 def gradient_scale(weights: np.ndarray, J: sp.csc_matrix) -> np.ndarray:
@@ -82,6 +86,7 @@ def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[np.nd
     at_lower = p - lower <= upper - p
     active = (p - lower <= slack) | (upper - p <= slack)
     released = np.zeros_like(active)
+    scale = gradient_scale(w, J)
     for _ in range(10):
         free = ~active
         size = int(free.sum())
@@ -93,13 +98,15 @@ def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[np.nd
         step = np.zeros_like(p)
         step[free] = solution[:size]
         gradient = regularizer_gradient + J.T @ solution[size:]  # >= 0 at a lower bound, <= 0 at an upper
-        wrong = active & np.where(at_lower, gradient < 0.0, gradient > 0.0)
+        # wrong-signed bound multipliers, above rounding (a 1e-3 share of the tolerance in the
+        # scaled measure): releasing rounding-level ones only re-solved the same system
+        wrong = active & (np.where(at_lower, -gradient, gradient) > 1e-3 * TOLERANCE * scale)
         crossing = free & ~released & (((p + step < lower) & (p - lower <= slack)) |
                                        ((p + step > upper) & (upper - p <= slack)))
         if not (wrong.any() or crossing.any()):
             break
         released |= wrong
         active = (active | crossing) & ~wrong
-    wrong_size = np.where(wrong, np.abs(gradient), 0.0) / gradient_scale(w, J)
+    wrong_size = np.where(wrong, np.abs(gradient), 0.0) / scale
     distance = max(float(np.abs(step).max(initial=0.0)), float(wrong_size.max(initial=0.0)))
     return step, distance, solution[size:]
