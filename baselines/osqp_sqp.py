@@ -90,14 +90,14 @@ def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lo
                  **settings)
     if warm_multipliers is not None:
         solver.warm_start(x=np.zeros(n + slacks), y=np.concatenate([warm_multipliers, np.zeros(n)]))
-    solution = solver.solve()
+    solution = solver.solve(raise_error=False)  # statuses are handled here
     iterations = solution.info.iter
     for _ in range(2):  # polishing failed: tighten ADMM (warm-started where it stopped) and polish again
         if solution.info.status_polish == 1 or solution.x is None or not np.all(np.isfinite(solution.x)):
             break
         solver.update_settings(eps_abs=solver.settings.eps_abs * 1e-2, eps_rel=solver.settings.eps_rel * 1e-2)
         solver.warm_start(x=solution.x, y=solution.y)
-        solution = solver.solve()
+        solution = solver.solve(raise_error=False)  # statuses are handled here
         iterations += solution.info.iter
     if solution.x is None or not np.all(np.isfinite(solution.x)):
         return solution, iterations, None, None, np.inf
