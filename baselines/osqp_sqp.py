@@ -16,8 +16,8 @@ Stops like ours: |c|_inf <= tol and the KKT measure of the kkt module <= optimal
 What to expect (measured on the reference scenes, see tests/test_baselines.py and
 benchmarks/bench_baselines.py): the QPs have condition numbers of ~1e4 after scaling and ADMM needs
 1e4 to 1e5 iterations per QP; where polishing keeps succeeding the SQP converges to the optimum of
-ours and Ipopt in 5-30 iterations, elsewhere the line search stalls (|c|_inf ~ 1e-6 on `helix` in
-element mode, the 100-vertex groom strand in strand mode) and the Result says so.
+ours and Ipopt in 5-30 iterations, elsewhere the line search stalls (|c|_inf ~ 5e-6 on `helix` in
+element mode; 4 of 5 100-vertex groom strands) and the Result says so.
 Iterations: ``sqp`` steps, ``admm`` (total ADMM iterations over all subproblems), ``line_search``
 trials, ``elastic`` subproblems and ``polish_failures`` (subproblems whose polishing still failed
 after the two tightenings).
@@ -71,9 +71,10 @@ def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lo
 
     The scaling changes with p (a stiffness column of J is zero at p0), so OSQP is set up for each
     subproblem, warm-started from d = 0 and the previous subproblem's equality multipliers
-    (``warm_multipliers``). When polishing fails (ADMM's active set was not yet right), ADMM continues from where
-    it stopped (warm start) with a 100 times tighter tolerance and polishes again, twice at most: a
-    step from an unpolished ADMM point is too inaccurate for the line search near the solution."""
+    (``warm_multipliers``). When polishing fails (ADMM's active set was not yet right), ADMM
+    continues from where it stopped (warm start) with a 100 times tighter tolerance and polishes
+    again, twice at most: a step from an unpolished ADMM point is too inaccurate for the line search
+    near the solution."""
     import osqp
 
     m, n = J.shape
