@@ -73,6 +73,9 @@ def solve_penalty_gn(problem: Problem, tol: float = 1e-8, force_weight: float = 
     clock = time.perf_counter()
     rest = problem.with_options(stiffness="fixed",
                                 optimize=tuple(b for b in REST_BLOCKS if b in problem.options["optimize"]))
+    if rest.n_parameters == 0:
+        raise ValueError("penalty-gn optimizes the rest shape only, and the problem optimizes none of "
+                         f"{REST_BLOCKS}")
     lower, upper, w = rest.layout.lower, rest.layout.upper, rest.layout.weights
     mu = force_weights(rest)
     p = rest.p0
