@@ -54,15 +54,8 @@ def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -
 
 
 def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float:
-    """Distance of p from a KKT point, in the units of p (zero exactly at a KKT point); see
-    ``kkt_step``."""
-    return kkt_step(problem, p, near)[1]
-
-
-def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[np.ndarray, float, np.ndarray]:
-    """(step d, distance of p from a KKT point in the units of p, multipliers lam).
-
-    The largest entry of the equality-constrained SQP step with the regularizer's Hessian
+    """Distance of p from a KKT point, in the units of p (zero exactly at a KKT point): the largest
+    entry of the equality-constrained SQP step with the regularizer's Hessian
     W = diag(w) on a working set F of free variables,
 
         [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c],
@@ -94,7 +87,7 @@ def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[np.nd
         try:
             solution = sp.linalg.splu(system).solve(-np.concatenate([regularizer_gradient[free], c]))
         except RuntimeError:  # J_F rank deficient: more constraints than free directions
-            return np.zeros_like(p), float("inf"), np.zeros_like(c)
+            return float("inf")
         step = np.zeros_like(p)
         step[free] = solution[:size]
         gradient = regularizer_gradient + J.T @ solution[size:]  # >= 0 at a lower bound, <= 0 at an upper
@@ -108,5 +101,4 @@ def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[np.nd
         released |= wrong
         active = (active | crossing) & ~wrong
     wrong_size = np.where(wrong, np.abs(gradient), 0.0) / scale
-    distance = max(float(np.abs(step).max(initial=0.0)), float(wrong_size.max(initial=0.0)))
-    return step, distance, solution[size:]
+    return max(float(np.abs(step).max(initial=0.0)), float(wrong_size.max(initial=0.0)))
