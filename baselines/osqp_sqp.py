@@ -37,9 +37,12 @@ from sagfree.solvers.result import Result, make_result
 ARMIJO = 1e-4
 #: OSQP settings: no OSQP scaling (the step is scaled by S already; OSQP's Ruiz scaling on top of it
 #: left ADMM at max_iter on these QPs), a small initial rho, and polishing with a small
-#: regularization delta and more refinement, which the QPs' ~1e4 condition number needs.
+#: regularization delta and more refinement, which the QPs' ~1e4 condition number needs. rho adapts
+#: every 200 ADMM iterations: OSQP's default interval follows a wall-time heuristic, which made the
+#: SQP's outcome change from run to run (`wavy` converged in one run, stalled in the next); of the
+#: fixed intervals 25 / 50 / 100 / 200, 200 converged on the most reference scenes, fastest.
 OSQP_SETTINGS = dict(verbose=False, scaling=0, rho=1e-4, polishing=True, delta=1e-10,
-                     polish_refine_iter=30, warm_starting=True)
+                     polish_refine_iter=30, warm_starting=True, adaptive_rho_interval=200)
 PENALTY = 1e3  # initial l1 penalty nu (c is unit-free, R is O(1) to O(100))
 
 
