@@ -85,6 +85,13 @@ def test_osqp_sqp_converges_to_our_optimum(scene):
     assert sqp.iterations["sqp"] > 1 and sqp.iterations["admm"] > sqp.iterations["sqp"]
 
 
+def test_osqp_sqp_is_reproducible():
+    """OSQP's default rho adaptation follows wall time; a fixed interval makes runs identical."""
+    problem = sagfree.Problem(sagfree.scenes.curly(n=30))
+    first, second = sagfree.solve(problem, "osqp"), sagfree.solve(problem, "osqp")
+    assert np.array_equal(first.p, second.p) and first.iterations == second.iterations
+
+
 @pytest.mark.parametrize("scene", ["horizontal", "curly"])
 def test_penalty_gn_leaves_a_residual_between_ours_and_naive(scene):
     problem = sagfree.Problem(SMALL_AND_MEDIUM[scene]())
