@@ -16,8 +16,8 @@ Stops like ours: |c|_inf <= tol and the KKT measure of the kkt module <= optimal
 What to expect (measured on the reference scenes, see tests/test_baselines.py and
 benchmarks/bench_baselines.py): the QPs have condition numbers of ~1e4 after scaling and ADMM needs
 1e4 to 1e5 iterations per QP; where polishing keeps succeeding the SQP converges to the optimum of
-ours and Ipopt in 5-30 iterations, elsewhere the line search stalls (|c|_inf ~ 5e-6 on `helix` in
-element mode; 4 of 5 100-vertex groom strands) and the Result says so.
+ours and Ipopt in 5-30 iterations (all four single reference strands), elsewhere the line search
+stalls (3 of 5 100-vertex groom strands) and the Result says so.
 Iterations: ``sqp`` steps, ``admm`` (total ADMM iterations over all subproblems), ``line_search``
 trials, ``elastic`` subproblems and ``polish_failures`` (subproblems whose polishing still failed
 after the two tightenings).
