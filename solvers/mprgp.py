@@ -308,6 +308,21 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 z[i] = rhs[i] if mask[i] else 0.0
         return True
 
+    def restart_at_best():
+        """x <- best after an expansion or proportioning step: gradient, sets and the new
+        preconditioned direction p; returns (gp2, bb, tp, factorization succeeded)."""
+        for i in range(n):
+            x[i] = best[i]
+        matvec(band, border, corner, x, g)
+        counts[MATVECS] += 1
+        for i in range(n):
+            g[i] -= b[i]
+        gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
+        ok = precondition(free, phi, False)
+        for i in range(n):
+            p[i] = z[i]
+        return gp2, bb, tp, ok
+
     if not precondition(free, phi, True):
         return 2, np.sqrt(gp2)
     for i in range(n):
@@ -378,17 +393,9 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                                 best[i] = trial[i]
                             break
                         t *= 0.5
-                for i in range(n):
-                    x[i] = best[i]
-                matvec(band, border, corner, x, g)
-                counts[MATVECS] += 1
-                for i in range(n):
-                    g[i] -= b[i]
-                gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
-                if not precondition(free, phi, False):
+                gp2, bb, tp, ok = restart_at_best()
+                if not ok:
                     return 2, np.sqrt(gp2)
-                for i in range(n):
-                    p[i] = z[i]
         else:  # proportioning step: release variables along the chopped gradient
             counts[PROPORTIONING] += 1
             matvec(band, border, corner, beta, hp)
@@ -419,17 +426,9 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 if _objective(band, border, corner, b, trial, hp) < f_best:
                     for i in range(n):
                         best[i] = trial[i]
-            for i in range(n):
-                x[i] = best[i]
-            matvec(band, border, corner, x, g)
-            counts[MATVECS] += 1
-            for i in range(n):
-                g[i] -= b[i]
-            gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
-            if not precondition(free, phi, False):
+            gp2, bb, tp, ok = restart_at_best()
+            if not ok:
                 return 2, np.sqrt(gp2)
-            for i in range(n):
-                p[i] = z[i]
         if not np.isfinite(gp2):
             return 3, np.sqrt(gp2)
     return (0 if gp2 <= tol * tol else 1), np.sqrt(gp2)
