@@ -63,9 +63,8 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
     where F starts as the variables farther than ``near`` (relative to the box width) from their
     bounds (interior-point solvers stop a hair inside them) and is corrected (at most 10 times) like
     an active-set method: a bound variable whose multiplier (grad R + J^T lam)_j has the wrong sign
-    (< 0 at a lower bound, > 0 at an upper one) is released, and a free variable within ``near`` of a
-    bound that the step pushes through is fixed there. Any wrong sign left at the end counts too,
-    scaled by h as in ``scaled_projected_gradient``.
+    (< 0 at a lower bound, > 0 at an upper one) is released. Any wrong sign left at the end counts
+    too, scaled by h as in ``scaled_projected_gradient``.
 
     Unlike the scaled projected gradient, this sees directions in which c can be kept by trading
     one parameter against another (the strand multiplier S against the rest shape): there the
@@ -78,7 +77,6 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
     slack = near * (upper - lower)
     at_lower = p - lower <= upper - p
     active = (p - lower <= slack) | (upper - p <= slack)
-    released = np.zeros_like(active)
     scale = gradient_scale(w, J)
     for _ in range(10):
         free = ~active
@@ -94,11 +92,8 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
         # wrong-signed bound multipliers, above rounding (a 1e-3 share of the tolerance in the
         # scaled measure): releasing rounding-level ones only re-solved the same system
         wrong = active & (np.where(at_lower, -gradient, gradient) > 1e-3 * TOLERANCE * scale)
-        crossing = free & ~released & (((p + step < lower) & (p - lower <= slack)) |
-                                       ((p + step > upper) & (upper - p <= slack)))
-        if not (wrong.any() or crossing.any()):
+        if not wrong.any():
             break
-        released |= wrong
-        active = (active | crossing) & ~wrong
+        active &= ~wrong
     wrong_size = np.where(wrong, np.abs(gradient), 0.0) / scale
     return max(float(np.abs(step).max(initial=0.0)), float(wrong_size.max(initial=0.0)))
