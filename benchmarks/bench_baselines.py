@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 import sagfree
+from sagfree.solvers.result import iteration_summary
 
 SOLVERS = ("asc", "ipopt", "osqp", "penalty-gn", "naive")
 
@@ -31,11 +32,6 @@ def run(strands, solver: str, stiffness: str) -> tuple[list, float]:
     start = time.perf_counter()
     results = [sagfree.solve(p, solver) for p in problems]
     return results, (time.perf_counter() - start) / len(problems)
-
-
-def iteration_summary(results) -> str:
-    keys = list(dict.fromkeys(k for r in results for k in r.iterations))
-    return " ".join(f"{k}={np.mean([r.iterations.get(k, 0) for r in results]):.0f}" for k in keys) or "-"
 
 
 def main() -> None:

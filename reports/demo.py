@@ -19,7 +19,7 @@ from sagfree.formulation.verification import FD_TOLERANCE, HAND_TOLERANCE, verif
 from sagfree.scenes import DEFAULT_GROOM, default_groom
 from sagfree.solvers.batch import optimize
 from sagfree.solvers.registry import SOLVERS
-from sagfree.solvers.result import STATUSES, Result
+from sagfree.solvers.result import STATUSES, Result, iteration_summary
 
 from .markdown import table, versions
 
@@ -54,12 +54,6 @@ def solver_rows(name: str, results: list[Result], wall: float) -> list:
         f"{100 * np.mean([b['stiffened'] for b in bend]) if bend else 0.0:.0f}%",
         f"{sum(r.stable for r in ok)}/{len(ok)}",
     ]
-
-
-def iteration_summary(results: list[Result]) -> str:
-    """Mean count of each kind of iteration, e.g. 'sqp=9 admm=25850'."""
-    keys = list(dict.fromkeys(k for r in results for k in r.iterations))
-    return " ".join(f"{k}={np.mean([r.iterations.get(k, 0) for r in results]):.0f}" for k in keys) or "-"
 
 
 def comparison_rows(results: dict[str, list[Result]], count: int) -> list[list]:

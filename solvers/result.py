@@ -111,6 +111,12 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
                   time, eigenvalue, stable, list(history or []))
 
 
+def iteration_summary(results: list[Result]) -> str:
+    """Mean count of each kind of iteration over ``results``, e.g. 'sqp=9 admm=25850' (reports)."""
+    keys = list(dict.fromkeys(k for result in results for k in result.iterations))
+    return " ".join(f"{k}={np.mean([r.iterations.get(k, 0) for r in results]):.0f}" for k in keys) or "-"
+
+
 def failed_result(solver: str, message: str, n_parameters: int = 0, time: float = 0.0) -> Result:
     """A Result for a strand whose problem could not even be built or evaluated."""
     nan = float("nan")
