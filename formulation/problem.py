@@ -22,6 +22,9 @@ from .parameters import BLOCKS, ParameterLayout
 from .stencils import edge_stencil, vertex_stencil
 from .strand import Strand
 
+#: Half bandwidth of every DOF Hessian: a vertex stencil spans 11 consecutive DOFs (dofs module).
+HALF_BANDWIDTH = 10
+
 
 class Problem:
     """Sag-free parameter problem of one strand.
@@ -72,8 +75,10 @@ class Problem:
         self.masses = masses
         self.gravity_forces = dofs.gravity_forces(masses, self.gravity)
         self.free = dofs.free_mask(n, strand.root)
+        self.first_free = int(np.argmax(self.free))  # the prescribed DOFs are a prefix of q
         self.row_scale = dofs.row_scales(masses, l0, strand.density, r, self.gravity)
         self._jacobian_pattern = _JacobianPattern(self)
+        self._band_scatter = None  # built on the first hessian_band call
 
     def with_options(self, **changes) -> "Problem":
         """The same strand's Problem with some constructor options changed."""
@@ -175,16 +180,33 @@ class Problem:
         return self._jacobian_pattern.assemble(self._edge.parameter_jacobian(*edge)[0],
                                                self._vertex.parameter_jacobian(*vertex)[0])
 
+    def _hessian_blocks(self, p, q, frames):
+        edge, vertex = self._stencil_inputs(p, q, frames)
+        return [(self._edge_index, self._edge.hessian(*edge)[0]),
+                (self._vertex_index, self._vertex.hessian(*vertex)[0])]
+
     def hessian(self, p, q=None, frames: Frames | None = None) -> sp.csr_matrix:
         """d2E/dq2 (4n-1 square, sparse, half bandwidth 10)."""
-        edge, vertex = self._stencil_inputs(p, q, frames)
-        blocks = [(self._edge_index, self._edge.hessian(*edge)[0]),
-                  (self._vertex_index, self._vertex.hessian(*vertex)[0])]
+        blocks = self._hessian_blocks(p, q, frames)
         rows = np.concatenate([np.repeat(ix, ix.shape[1], axis=1).ravel() for ix, _ in blocks])
         cols = np.concatenate([np.tile(ix, (1, ix.shape[1])).ravel() for ix, _ in blocks])
         values = np.concatenate([h.ravel() for _, h in blocks])
         size = self.q_star.size
         return sp.csr_matrix((values, (rows, cols)), shape=(size, size))
+
+    def hessian_band(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
+        """d2E/dq2 in LAPACK lower band storage: band[k, j] = H[j + k, j], k = 0..10.
+
+        Summed from the stencil Hessians in O(n); ``band[:, s:]`` is the trailing block from DOF s
+        (the free block: the root prescribes a prefix of q).
+        """
+        if self._band_scatter is None:
+            self._band_scatter = _band_scatter(
+                [self._edge_index, self._vertex_index], self.q_star.size)
+        target, lower = self._band_scatter
+        values = np.concatenate([h[mask] for (_, h), mask in zip(self._hessian_blocks(p, q, frames), lower)])
+        size = self.q_star.size
+        return np.bincount(target, values, minlength=(HALF_BANDWIDTH + 1) * size).reshape(-1, size)
 
     def stability(self, p) -> float:
         """Smallest eigenvalue of the free-DOF energy Hessian at q* (DESIGN 7); > 0: stable rest.
@@ -194,11 +216,8 @@ class Problem:
         Cholesky means H is not positive definite; then the banded eigensolver (O(n^2)) finds the
         most negative eigenvalue.
         """
-        h = self.hessian(p)[self.free][:, self.free]
-        band, size = 10, h.shape[0]
-        banded = np.zeros((band + 1, size))
-        for k in range(band + 1):
-            banded[k, : size - k] = h.diagonal(-k)
+        banded = self.hessian_band(p)[:, self.first_free:]
+        size = banded.shape[1]
         try:
             factor = scipy.linalg.cholesky_banded(banded, lower=True)
         except np.linalg.LinAlgError:
@@ -207,6 +226,20 @@ class Problem:
                                       matvec=lambda x: scipy.linalg.cho_solve_banded((factor, True), x))
         largest = spla.eigsh(inverse, k=1, which="LA", tol=1e-10, return_eigenvectors=False)[0]
         return float(1.0 / largest)
+
+
+def _band_scatter(stencil_indices: list[np.ndarray], size: int):
+    """For each stencil kind: the lower-triangle mask of its Hessian blocks; overall: the flat index
+    into (HALF_BANDWIDTH + 1, size) band storage of every kept entry."""
+    targets, masks = [], []
+    for index in stencil_indices:
+        width = index.shape[1]
+        row = np.repeat(index, width, axis=1).reshape(-1, width, width)
+        col = np.tile(index, (1, width)).reshape(-1, width, width)
+        lower = row >= col
+        targets.append((row[lower] - col[lower]) * size + col[lower])
+        masks.append(lower)
+    return np.concatenate(targets), masks
 
 
 class _JacobianPattern:

@@ -1,4 +1,5 @@
-"""Many strands on all cores: ``sagfree.optimize`` (DESIGN sections 5 and 10).
+"""Many strands on all cores: ``sagfree.optimize`` and the forward check ``simulate_strands``
+(DESIGN sections 5, 7 and 10).
 
 Strands are independent, so the batch is split into contiguous chunks that worker processes solve
 one strand at a time. Each strand's Problem is built inside the worker (a Problem holds compiled
@@ -16,8 +17,12 @@ import os
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from functools import partial
+
+import numpy as np
 
 from sagfree.formulation.problem import Problem
+from sagfree.formulation.simulation import SagCheck, sag_check
 from sagfree.formulation.strand import Strand
 
 from .registry import solver_function
@@ -40,8 +45,49 @@ def solve_strand(strand: Strand, solver: str = "asc", solver_options: dict | Non
                              time.perf_counter() - start)
 
 
-def _solve_chunk(strands, solver, solver_options, problem_options) -> list[Result]:
-    return [solve_strand(s, solver, solver_options, **problem_options) for s in strands]
+def _run_chunk(function, chunk, arguments) -> list:
+    return [function(*item, *arguments) for item in chunk]
+
+
+def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int | None = None,
+                progress: bool = False, desc: str = "", on_crash=None) -> list:
+    """[function(*item, *arguments) for item in items] on ``jobs`` worker processes, in order.
+
+    ``function`` must never raise for a bad strand (it returns a failed record instead);
+    ``on_crash(message)`` makes the record of each item of a chunk whose worker process died.
+    jobs: None = all cores, 1 = in this process. Chunks are contiguous, so results do not depend on
+    the number of jobs.
+    """
+    jobs = (os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
+    if jobs == 1 or len(items) <= 1:
+        iterator = items
+        if progress:
+            from tqdm import tqdm
+            iterator = tqdm(items, desc=desc, unit="strand")
+        return [function(*item, *arguments) for item in iterator]
+    # small chunks keep all workers busy to the end; several per worker amortize the transfer
+    size = max(1, min(64, len(items) // (4 * jobs)))
+    chunks = [items[i: i + size] for i in range(0, len(items), size)]
+    context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
+                                          else "spawn")
+    results: list[list] = [None] * len(chunks)  # type: ignore[list-item]
+    with ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=context) as pool:
+        futures = {pool.submit(_run_chunk, function, c, arguments): k for k, c in enumerate(chunks)}
+        bar = None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=len(items), desc=f"{desc} x{jobs}", unit="strand")
+        for future in as_completed(futures):
+            k = futures[future]
+            try:
+                results[k] = future.result()
+            except Exception as exc:  # noqa: BLE001 - a worker died: fail its strands only
+                results[k] = [on_crash(f"worker process failed: {exc}") for _ in chunks[k]]
+            if bar is not None:
+                bar.update(len(chunks[k]))
+        if bar is not None:
+            bar.close()
+    return [r for chunk_results in results for r in chunk_results]
 
 
 def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_options: dict | None = None,
@@ -54,34 +100,36 @@ def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_optio
     """
     strands = list(strands)
     solver_function(solver)  # an unknown solver is a usage error, raised before any work
-    jobs = (os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
-    if jobs == 1 or len(strands) <= 1:
-        iterator = strands
-        if progress:
-            from tqdm import tqdm
-            iterator = tqdm(strands, desc=f"{solver}", unit="strand")
-        return [solve_strand(s, solver, solver_options, **problem_options) for s in iterator]
-    # small chunks keep all workers busy to the end; several per worker amortize the transfer
-    chunk = max(1, min(64, len(strands) // (4 * jobs)))
-    chunks = [strands[i: i + chunk] for i in range(0, len(strands), chunk)]
-    context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
-                                          else "spawn")
-    results: list[list[Result]] = [None] * len(chunks)  # type: ignore[list-item]
-    with ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=context) as pool:
-        futures = {pool.submit(_solve_chunk, c, solver, solver_options, problem_options): k
-                   for k, c in enumerate(chunks)}
-        bar = None
-        if progress:
-            from tqdm import tqdm
-            bar = tqdm(total=len(strands), desc=f"{solver} x{jobs}", unit="strand")
-        for future in as_completed(futures):
-            k = futures[future]
-            try:
-                results[k] = future.result()
-            except Exception as exc:  # noqa: BLE001 - a worker died: fail its strands only
-                results[k] = [failed_result(solver, f"worker process failed: {exc}") for _ in chunks[k]]
-            if bar is not None:
-                bar.update(len(chunks[k]))
-        if bar is not None:
-            bar.close()
-    return [r for chunk_results in results for r in chunk_results]
+    return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
+                       jobs, progress, solver, partial(failed_result, solver))
+
+
+def _solve(strand, solver, solver_options, problem_options) -> Result:
+    return solve_strand(strand, solver, solver_options, **problem_options)
+
+
+def _check(strand, p, problem_options, steps, dt, damping) -> SagCheck:
+    """sag_check of one strand; a strand without parameters or that fails gets a record saying why."""
+    start = time.perf_counter()
+    nan = float("nan")
+    if p is None or not np.all(np.isfinite(p)):
+        return SagCheck(nan, nan, nan, False, 0.0, 0.0, "no parameters (its optimization failed)")
+    try:
+        return sag_check(Problem(strand, **problem_options), p, steps, dt, damping)
+    except Exception as exc:  # noqa: BLE001 - reported per strand, the batch goes on
+        detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        return SagCheck(nan, nan, nan, False, 0.0, time.perf_counter() - start, detail)
+
+
+def simulate_strands(strands, parameters, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
+                     jobs: int | None = None, progress: bool = False, **problem_options) -> list[SagCheck]:
+    """Forward-check every strand's parameters (formulation.simulation.sag_check) on all cores.
+
+    parameters: one p per strand (None or NaN: not checked); problem_options as for ``optimize``.
+    """
+    strands, parameters = list(strands), list(parameters)
+    if len(strands) != len(parameters):
+        raise ValueError(f"{len(strands)} strands but {len(parameters)} parameter vectors")
+    nan = float("nan")
+    return map_strands(_check, list(zip(strands, parameters)), (problem_options, steps, dt, damping), jobs,
+                       progress, "simulate", lambda message: SagCheck(nan, nan, nan, False, 0.0, 0.0, message))

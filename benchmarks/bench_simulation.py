@@ -1,0 +1,94 @@
+"""Forward simulation cost against strand size (DESIGN section 7).
+
+    python benchmarks/bench_simulation.py [--strands 4] [--steps 100]
+
+For groom strands of 25 to 400 vertices (the same physical strands at each resolution), one core:
+1. implicit-Euler runs of the naive parameters (the strands sag and swing) and of our optimized
+   parameters (they stay still; Newton still steps, tol below the round-off floor): time per time
+   step, Newton steps per time step, and time per vertex per Newton step (flat = linear cost);
+2. the Newton linear solve alone, banded Cholesky (ours) against a dense Cholesky of the same matrix
+   (the baseline, measured in this run), with their ratio.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import scipy.linalg
+
+from sagfree.formulation.simulation import (
+    CHECK_TOLERANCE,
+    IncrementalPotential,
+    generalized_masses,
+)
+
+import sagfree
+
+SIZES = (25, 50, 100, 200, 400)
+
+
+def run_table(strands: int, steps: int) -> None:
+    print(f"1. implicit Euler, {steps} steps of 1 ms, {strands} groom strands per size, one core")
+    print(f"   {'vertices':>8} {'params':>9} {'ms/step':>8} {'Newton/step':>11} {'us/vertex/Newton':>17} "
+          f"{'sag / L':>9}")
+    for n in SIZES:
+        groom = sagfree.scenes.groom(strands, n, seed=0)
+        for label in ("naive", "asc"):
+            step_time, newton, sag = [], [], []
+            for strand in groom:
+                problem = sagfree.Problem(strand)
+                p = problem.p0 if label == "naive" else sagfree.solve(problem).p
+                sagfree.simulate(problem, p, steps=2)  # load the compiled model outside the timing
+                run = sagfree.simulate(problem, p, steps=steps, tol=CHECK_TOLERANCE)
+                step_time.append(run.time / steps)
+                newton.append(run.newton_iterations.mean())
+                sag.append(run.relative_sag)
+            per_newton = np.sum(step_time) / np.sum(newton)
+            print(f"   {n:8d} {label:>9} {1e3 * np.mean(step_time):8.2f} {np.mean(newton):11.2f} "
+                  f"{1e6 * per_newton / n:17.2f} {np.max(sag):9.2e}")
+
+
+def solve_table(repeats: int = 20) -> None:
+    print("\n2. one Newton linear solve (K = d2E/dq2 + M/dt^2 on the free DOFs), banded vs dense Cholesky")
+    print(f"   {'vertices':>8} {'DOFs':>6} {'banded ms':>10} {'dense ms':>9} {'dense / banded':>15}")
+    for n in SIZES:
+        problem = sagfree.Problem(sagfree.scenes.groom(1, n, seed=0)[0])
+        weight = generalized_masses(problem) / 1e-6
+        potential = IncrementalPotential(problem, problem.p0, problem.frames, (weight, problem.q_star))
+        band = potential.hessian_band(problem.q_star)[:, problem.first_free:]
+        g = potential.gradient(problem.q_star)[problem.first_free:]
+        size = band.shape[1]
+        dense = np.zeros((size, size))
+        for k in range(band.shape[0]):
+            i = np.arange(size - k)
+            dense[i + k, i] = dense[i, i + k] = band[k, : size - k]
+
+        def banded_solve():
+            return scipy.linalg.cho_solve_banded((scipy.linalg.cholesky_banded(band, lower=True), True), g)
+
+        def dense_solve():
+            return scipy.linalg.cho_solve(scipy.linalg.cho_factor(dense, lower=True), g)
+
+        reference = dense_solve()  # the same solution, up to the conditioning of K (~1e10)
+        np.testing.assert_allclose(banded_solve(), reference, rtol=0, atol=1e-6 * np.abs(reference).max())
+        times = []
+        for solve in (banded_solve, dense_solve):
+            start = time.perf_counter()
+            for _ in range(repeats):
+                solve()
+            times.append((time.perf_counter() - start) / repeats)
+        print(f"   {n:8d} {size:6d} {1e3 * times[0]:10.3f} {1e3 * times[1]:9.3f} {times[1] / times[0]:15.1f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--strands", type=int, default=4, help="groom strands per size (default 4)")
+    parser.add_argument("--steps", type=int, default=100, help="time steps per run (default 100)")
+    args = parser.parse_args()
+    run_table(args.strands, args.steps)
+    solve_table()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,408 @@
+"""Forward simulation of one strand: implicit Euler and the static equilibrium (DESIGN section 7).
+
+Both minimize, by Newton's method, an incremental potential over the free DOFs (the root prescribes
+x_0, th_0, x_1 when clamped, x_0 when pinned):
+
+    Phi(q) = E(q, p) - f_g . q + 1/2 (q - y)^T W (q - y)                                      (J)
+
+* implicit (backward) Euler with mass-proportional damping c (1/s): W = M (1/dt^2 + c/dt) and
+  y = q_t + dt v_t / (1 + c dt); then grad Phi = 0 is M (v_{t+1} - v_t)/dt = f(q_{t+1}) - c M v_{t+1}
+  with v_{t+1} = (q_{t+1} - q_t)/dt (S(7) is the inertia term at v = 0);
+* the static equilibrium: W = 0, started from q*.
+
+M is lumped: m_i = rho pi r^2 (l0_{i-1} + l0_i)/2 on the positions of vertex i, and the polar inertia
+of edge j about its axis, rho pi r^4 l0_j / 2 (kg m^2), on th_j.
+
+Reference frames (Bergou et al. 2010): during a time step the energy is evaluated with the frames of
+the previous state, time-parallel transported to the new tangents inside the CasADi expression, so
+Phi is one smooth function whose exact gradient and Hessian Newton uses; after the step the frames
+are transported to the new state and the reference twist updated. When a tangent turns by more than
+REBASE_ANGLE from its frame's tangent within one solve, the frames are re-based on the current
+iterate (exact in value: the transported frame is the same), which keeps the transport far from its
+singularity at opposite tangents during large static sags.
+
+Newton (``newton_solve``): the free block of K = d2Phi/dq2 + mu M is banded (half bandwidth 10) and
+factored by LAPACK's banded Cholesky in O(n). mu is a Levenberg-Marquardt damping in the mass metric
+(1/s^2: mu M is the inertia of a pseudo time step 1/sqrt(mu)), adapted by the ratio rho of the actual
+to the predicted decrease of Phi: a step is taken when rho > ACCEPT; mu falls 4x when rho > 0.75 and
+rises 4x when rho < 0.25; below MU_MIN it is 0, i.e. pure Newton with quadratic convergence. The
+implicit-Euler steps start at mu = 0 (their own inertia W keeps Newton in range). The static solve
+starts at MU_STATIC: a pure Newton step from q* would move a drooping cantilever straight down,
+stretch it, and crawl; the damped steps follow an overdamped motion from q* instead, which also makes
+the equilibrium found the one q* relaxes into. Where K is not positive definite (compressed or
+buckling states), mu rises 4x until the Cholesky succeeds: the mass metric is positive on every DOF,
+so this always ends, and unlike a shift by diag(K) it does not let the stiff stretch terms freeze the
+soft directions.
+
+Convergence: the scaled residual max |grad Phi / D| (D: dofs.row_scales, the vertex weight) is at
+most ``tol``; or it is below the round-off floor (``roundoff_floor``) and either the last Newton step
+moved no vertex by more than STEP_TOLERANCE strand lengths and no angle by more than STEP_TOLERANCE
+rad, or it stagnates. Coordinates are known to 1e-16 of their magnitude, and a hair's stretch
+stiffness EA is ~1e10 times its vertex weight per metre: rounding alone leaves residuals of 1e-8 to
+1e-6 on a 30-vertex strand, more on finer ones.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from . import dofs
+from .frames import Frames, transport_frames, unit
+from .problem import Problem
+
+#: Newton has converged when the scaled residual max |grad Phi / D| is below this.
+RESIDUAL_TOLERANCE = 1e-8
+#: ... or when a Newton step moves vertices by at most this many strand lengths (and angles by rad).
+STEP_TOLERANCE = 1e-10
+#: ... or (below the round-off floor) when the residual has not halved in STAGNATION_STEPS steps.
+STAGNATION_STEPS = 3
+#: Levenberg-Marquardt damping mu (1/s^2): smallest non-zero value, start of the static solve,
+#: accepted ratio of actual to predicted decrease, rejected steps in a row before giving up.
+MU_MIN = 1.0
+MU_STATIC = 1e6
+ACCEPT = 1e-4
+MAX_REJECTED = 40
+#: Tolerance of sag_check: below the round-off floor, so that Newton always steps.
+CHECK_TOLERANCE = 1e-12
+#: Tangent turn (rad) above which the reference frames are re-based on the current iterate.
+REBASE_ANGLE = np.radians(60.0)
+
+
+@dataclass
+class NewtonSolve:
+    """One Newton solve: scaled residual max |grad Phi / D| before each step, steps taken, outcome."""
+
+    residuals: list[float] = field(default_factory=list)
+    steps: int = 0
+    rejected: int = 0       # trial steps rejected by the decrease ratio (mu raised)
+    indefinite: int = 0     # factorizations that failed: K not positive definite (mu raised)
+    converged: bool = False
+    message: str = ""
+
+
+@dataclass
+class Equilibrium:
+    """Static equilibrium found by Newton from q*.
+
+    q: DOFs (4n-1); positions (n, 3), m; sag: max |x_i - x_i*| (m); relative_sag: sag / L;
+    newton: the solve's residual history and outcome; time (s).
+    """
+
+    q: np.ndarray
+    positions: np.ndarray
+    sag: float
+    relative_sag: float
+    newton: NewtonSolve
+    time: float
+
+    @property
+    def converged(self) -> bool:
+        return self.newton.converged
+
+    def __repr__(self) -> str:
+        return (f"Equilibrium(converged={self.converged}, sag={self.sag:.3g} m, relative_sag="
+                f"{self.relative_sag:.3g}, newton_steps={self.newton.steps}, time={self.time:.3g} s)\n"
+                f"  message: {self.newton.message}")
+
+
+@dataclass
+class Simulation:
+    """Implicit-Euler trajectory from rest at q*.
+
+    trajectory: (steps + 1, n, 3) positions, m; theta: (steps + 1, n - 1) material angles, rad;
+    times: (steps + 1,) s; displacement: (steps + 1,) max |x_i(t) - x_i*| per frame, m;
+    sag: its maximum over the run (m); relative_sag: sag / L; newton: one NewtonSolve per step;
+    dt: time step (s); time: wall time (s).
+    """
+
+    trajectory: np.ndarray
+    theta: np.ndarray
+    times: np.ndarray
+    displacement: np.ndarray
+    sag: float
+    relative_sag: float
+    newton: list[NewtonSolve]
+    dt: float
+    time: float
+
+    @property
+    def converged(self) -> bool:
+        """Every step ran and its Newton solve converged."""
+        return len(self.times) == len(self.newton) + 1 and all(s.converged for s in self.newton)
+
+    @property
+    def newton_iterations(self) -> np.ndarray:
+        return np.array([s.steps for s in self.newton])
+
+    def __repr__(self) -> str:
+        steps = self.newton_iterations
+        return (f"Simulation(steps={len(self.times) - 1}, dt={self.dt:g} s, converged={self.converged}, sag={self.sag:.3g} m, relative_sag={self.relative_sag:.3g}, "
+                f"newton_per_step={steps.mean() if steps.size else 0:.2f}, time={self.time:.3g} s)")
+
+
+class IncrementalPotential:
+    """Phi(q) of the module docstring for one Problem and parameter vector p.
+
+    ``inertia``: None (static) or (W, y) with W the per-DOF weight (kg/s^2, kg m^2/s^2) and y the
+    inertial target (4n-1).
+    """
+
+    def __init__(self, problem: Problem, p: np.ndarray, frames: Frames, inertia=None, scales=None):
+        self.problem, self.p, self.frames = problem, np.asarray(p, dtype=float), frames
+        self.weight, self.target = inertia if inertia is not None else (None, None)
+        self.scales = newton_scales(problem, self.p) if scales is None else scales
+
+    def value(self, q: np.ndarray) -> float:
+        phi = self.problem.energy(self.p, q, self.frames) - self.problem.gravity_forces @ q
+        if self.weight is not None:
+            d = q - self.target
+            phi += 0.5 * d @ (self.weight * d)
+        return float(phi)
+
+    def gradient(self, q: np.ndarray) -> np.ndarray:
+        g = self.problem.elastic_gradient(self.p, q, self.frames) - self.problem.gravity_forces
+        if self.weight is not None:
+            g += self.weight * (q - self.target)
+        return g
+
+    def hessian_band(self, q: np.ndarray) -> np.ndarray:
+        band = self.problem.hessian_band(self.p, q, self.frames)
+        if self.weight is not None:
+            band[0] += self.weight
+        return band
+
+
+def newton_scales(problem: Problem, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Per free DOF: the residual scale D, the Levenberg-Marquardt metric M and the step tolerance
+    (STEP_TOLERANCE L on positions, STEP_TOLERANCE rad on angles); and the round-off floor."""
+    s = problem.first_free
+    limit = np.full(problem.q_star.size, STEP_TOLERANCE * problem.strand.length)
+    limit[dofs.theta_index(problem.n_vertices)] = STEP_TOLERANCE
+    return problem.row_scale[s:], generalized_masses(problem)[s:], limit[s:], roundoff_floor(problem, p)
+
+
+def roundoff_floor(problem: Problem, p: np.ndarray) -> float:
+    """Scaled residual that rounding alone leaves in the stretch forces (dimensionless).
+
+    Coordinates are known to eps X, X = max |x*| + L bounding where a vertex can go, so each edge
+    length to 2 eps X, and the stretch force of edge j to 2 eps X alpha_j pi r^2 / l0_j (N); summed
+    over the edges at each vertex and divided by its weight D_i. About 1e-6 for `horizontal` (30
+    vertices, 10 cm), growing like n^2 (4e-4 for a 400-vertex groom strand).
+    """
+    strand = problem.strand
+    stiffness = problem.physical(p)["stretch_modulus"] * np.pi * strand.radius**2 / problem.edge_lengths
+    at_vertex = np.r_[stiffness, 0.0] + np.r_[0.0, stiffness]
+    reach = np.abs(strand.points).max() + strand.length
+    weight = problem.row_scale[dofs.position_index(problem.n_vertices)[:, 0]]
+    return float(2.0 * np.finfo(float).eps * reach * np.max(at_vertex / weight))
+
+
+def generalized_masses(problem: Problem) -> np.ndarray:
+    """Lumped mass per DOF (4n-1): m_i (kg) on positions, rho pi r^4 l0_j / 2 (kg m^2) on th_j."""
+    strand = problem.strand
+    n = problem.n_vertices
+    mass = np.empty(problem.q_star.size)
+    mass[dofs.position_index(n)] = problem.masses[:, None]
+    mass[dofs.theta_index(n)] = 0.5 * strand.density * np.pi * strand.radius**4 * problem.edge_lengths
+    return mass
+
+
+def _quadratic_form(band: np.ndarray, d: np.ndarray) -> float:
+    """d^T K d for K in lower band storage."""
+    value = band[0] @ (d * d)
+    for k in range(1, band.shape[0]):
+        value += 2.0 * band[k, : d.size - k] @ (d[k:] * d[: d.size - k])
+    return float(value)
+
+
+def _max_turn(frames: Frames, q: np.ndarray) -> float:
+    """Largest angle (rad) between the tangents of q and those of the frames."""
+    tangents = unit(np.diff(dofs.positions(q), axis=0))
+    cosine = np.clip(np.sum(tangents * frames.tangents, axis=1), -1.0, 1.0)
+    return float(np.arccos(cosine.min()))
+
+
+def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RESIDUAL_TOLERANCE,
+                 max_steps: int = 50, mu: float = 0.0) -> tuple[np.ndarray, NewtonSolve]:
+    """Minimize Phi over the free DOFs from q (prescribed DOFs stay as given); module docstring.
+
+    mu: initial Levenberg-Marquardt damping (1/s^2). Returns the final q and the solve's record;
+    re-bases ``potential.frames`` when tangents turn far.
+    """
+    problem = potential.problem
+    s = problem.first_free
+    scale, metric, step_limit, floor = potential.scales
+    q = np.array(q, dtype=float)
+    record = NewtonSolve()
+    phi = potential.value(q)
+    tiny_step = False
+    while True:
+        g = potential.gradient(q)[s:]
+        residual = float(np.max(np.abs(g / scale)))
+        record.residuals.append(residual)
+        if not np.isfinite(residual) or not np.isfinite(phi):
+            record.message = "non-finite energy or force"
+            return q, record
+        if residual <= tol:
+            record.converged, record.message = True, f"residual {residual:.2e} <= {tol:g}"
+            return q, record
+        if residual <= floor and (tiny_step or _stagnated(record.residuals)):
+            how = f"Newton step below {STEP_TOLERANCE:g}" if tiny_step else "stagnated"
+            record.converged = True
+            record.message = f"residual {residual:.2e} at the round-off floor {floor:.1e} ({how})"
+            return q, record
+        if record.steps == max_steps:
+            record.message = f"no convergence in {max_steps} Newton steps (residual {residual:.2e})"
+            return q, record
+        band = potential.hessian_band(q)[:, s:]
+        for _ in range(MAX_REJECTED):
+            damped = band.copy()
+            damped[0] += mu * metric
+            try:
+                factor = scipy.linalg.cholesky_banded(damped, lower=True)
+            except np.linalg.LinAlgError:
+                record.indefinite += 1
+                mu = max(4.0 * mu, MU_MIN)
+                continue
+            d = -scipy.linalg.cho_solve_banded((factor, True), g)
+            trial = q.copy()
+            trial[s:] += d
+            with np.errstate(all="ignore"):
+                phi_trial = potential.value(trial)
+            predicted = -(g @ d + 0.5 * _quadratic_form(band, d))
+            actual = phi - phi_trial
+            resolvable = predicted > 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
+            ratio = actual / predicted if resolvable else 1.0
+            if np.isfinite(phi_trial) and ratio > ACCEPT:
+                break
+            record.rejected += 1
+            mu = max(4.0 * mu, MU_MIN)
+        else:
+            record.message = (f"no acceptable step after {MAX_REJECTED} increases of mu to {mu:.3g} "
+                              f"(residual {residual:.2e})")
+            return q, record
+        q, phi = trial, phi_trial
+        record.steps += 1
+        tiny_step = bool(np.all(np.abs(d) <= step_limit))
+        if ratio > 0.75:
+            mu = 0.25 * mu if mu > 4.0 * MU_MIN else 0.0
+        elif ratio < 0.25:
+            mu = max(4.0 * mu, MU_MIN)
+        if _max_turn(potential.frames, q) > REBASE_ANGLE:
+            potential.frames = transport_frames(potential.frames, dofs.positions(q))
+            phi = potential.value(q)
+
+
+def _stagnated(residuals: list[float]) -> bool:
+    """The last STAGNATION_STEPS Newton steps did not halve the residual."""
+    if len(residuals) <= STAGNATION_STEPS:
+        return False
+    return min(residuals[-STAGNATION_STEPS:]) > 0.5 * residuals[-STAGNATION_STEPS - 1]
+
+
+def _displacement(problem: Problem, q: np.ndarray) -> float:
+    """max_i |x_i - x_i*|, m."""
+    return float(np.max(np.linalg.norm(dofs.positions(q) - problem.strand.points, axis=1)))
+
+
+def equilibrium(problem: Problem, p, tol: float = RESIDUAL_TOLERANCE, max_steps: int = 2000) -> Equilibrium:
+    """Static equilibrium that q* relaxes into (damped Newton from q*, module docstring), with its sag."""
+    start = time.perf_counter()
+    p = problem._checked(p)
+    potential = IncrementalPotential(problem, p, problem.frames)
+    q, record = newton_solve(potential, problem.q_star, tol, max_steps, mu=MU_STATIC)
+    sag = _displacement(problem, q)
+    return Equilibrium(q, dofs.positions(q), sag, sag / problem.strand.length, record,
+                       time.perf_counter() - start)
+
+
+def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
+             root_motion: Callable[[float], np.ndarray] | None = None, tol: float = RESIDUAL_TOLERANCE,
+             max_newton: int = 50) -> Simulation:
+    """Implicit-Euler run of ``steps`` steps of ``dt`` seconds from rest at q* (module docstring).
+
+    damping: mass-proportional damping rate c, 1/s (0: none). root_motion: translation (m, 3-vector)
+    of the prescribed root vertices at time t (s); None keeps the root where q* has it. The run stops
+    early if a state becomes non-finite; ``converged`` tells whether every step's Newton converged.
+    """
+    if steps < 0 or not dt > 0 or not damping >= 0:
+        raise ValueError(f"need steps >= 0, dt > 0 and damping >= 0; got {steps}, {dt}, {damping}")
+    start = time.perf_counter()
+    p = problem._checked(p)
+    weight = generalized_masses(problem) * (1.0 / dt**2 + damping / dt)
+    scales = newton_scales(problem, p)
+    n = problem.n_vertices
+    root = [i for i in dofs.position_index(n).ravel() if i < problem.first_free]
+    q, v, frames = problem.q_star.copy(), np.zeros_like(problem.q_star), problem.frames
+    states, solves = [q], []
+    for step in range(1, steps + 1):
+        target = q + dt * v / (1.0 + damping * dt)
+        if root_motion is not None:
+            target[root] = problem.q_star[root] + np.tile(np.asarray(root_motion(step * dt), float), len(root) // 3)
+        potential = IncrementalPotential(problem, p, frames, (weight, target), scales)
+        q_next, record = newton_solve(potential, target, tol, max_newton)
+        solves.append(record)
+        if not np.all(np.isfinite(q_next)):
+            break
+        frames = transport_frames(potential.frames, dofs.positions(q_next))
+        v = (q_next - q) / dt
+        q = q_next
+        states.append(q)
+    states = np.array(states)
+    positions = states[:, dofs.position_index(n)]
+    displacement = np.max(np.linalg.norm(positions - problem.strand.points, axis=2), axis=1)
+    sag = float(displacement.max())
+    return Simulation(positions, states[:, dofs.theta_index(n)], dt * np.arange(len(states)), displacement,
+                      sag, sag / problem.strand.length, solves, dt, time.perf_counter() - start)
+
+
+@dataclass
+class SagCheck:
+    """Forward check of one strand's parameters (``sagfree simulate``): an implicit-Euler run from rest
+    at q* and the static equilibrium from q*.
+
+    sag: max vertex displacement over the run (m); relative_sag: over L; static_sag: the static
+    equilibrium's displacement over L (NaN if it did not converge); converged: both solvers
+    converged; newton: mean Newton steps per time step; message: what went wrong, if anything.
+    """
+
+    sag: float
+    relative_sag: float
+    static_sag: float
+    converged: bool
+    newton: float
+    time: float
+    message: str = ""
+
+    def sags(self, threshold: float) -> bool:
+        """Whether the strand moves by more than ``threshold`` strand lengths (or was not checked)."""
+        worst = max(self.relative_sag, self.static_sag)
+        return not (self.converged and worst <= threshold)
+
+
+def sag_check(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
+              tol: float = CHECK_TOLERANCE) -> SagCheck:
+    """Run ``simulate`` and ``equilibrium`` on ``p`` and summarize them as a SagCheck.
+
+    The default ``tol`` lies below the round-off floor, so Newton takes at least one step at every
+    time step even where q* already satisfies RESIDUAL_TOLERANCE: the check shows what a simulator
+    does that has no such tolerance.
+    """
+    start = time.perf_counter()
+    run = simulate(problem, p, steps, dt, damping, tol=tol)
+    static = equilibrium(problem, p, tol=tol)
+    problems = []
+    if not run.converged:
+        failed = next((k for k, s in enumerate(run.newton) if not s.converged), len(run.newton))
+        detail = run.newton[failed].message if failed < len(run.newton) else "non-finite state"
+        problems.append(f"time step {failed + 1}: {detail}")
+    if not static.converged:
+        problems.append(f"static solve: {static.newton.message}")
+    return SagCheck(run.sag, run.relative_sag, static.relative_sag if static.converged else float("nan"),
+                    run.converged and static.converged,
+                    float(run.newton_iterations.mean()) if run.newton else 0.0,
+                    time.perf_counter() - start, "; ".join(problems))

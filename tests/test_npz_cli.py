@@ -1,0 +1,84 @@
+"""Strands and parameters as .npz files, and `sagfree optimize` / `sagfree simulate` on them."""
+import numpy as np
+import pytest
+
+import sagfree
+from sagfree.cli import main
+from sagfree.scenes.npz import load_parameters, load_strands, save_parameters, save_strands
+
+
+def mixed_strands():
+    """Different vertex counts, a flipped strand with its angles, a pinned root, another material."""
+    return [sagfree.scenes.horizontal(n=12), sagfree.scenes.flipped(n=9),
+            sagfree.Strand(sagfree.scenes.curly(n=15).points, radius=4e-5, youngs_modulus=2e9,
+                           shear_modulus=7e8, density=1100.0, root="pinned")]
+
+
+def test_strands_round_trip(tmp_path):
+    strands = mixed_strands()
+    save_strands(tmp_path / "s.npz", strands)
+    back = sagfree.load(tmp_path / "s.npz")
+    assert len(back) == len(strands)
+    for a, b in zip(strands, back):
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.theta, b.theta)
+        assert (a.radius, a.youngs_modulus, a.shear_modulus, a.density, a.root) == \
+               (b.radius, b.youngs_modulus, b.shear_modulus, b.density, b.root)
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+
+
+def test_parameters_round_trip_keeps_failed_strands(tmp_path):
+    strands = mixed_strands()
+    results = sagfree.optimize(strands, jobs=1)
+    results[1] = sagfree.solvers.result.failed_result("asc", "poisoned on purpose")
+    save_parameters(tmp_path / "p.npz", results, "asc", {"stiffness": "element"})
+    back = load_parameters(tmp_path / "p.npz")
+    assert back.solver == "asc" and back.problem_options == {"stiffness": "element"}
+    assert back.status == [r.status for r in results]
+    assert back.message[1] == "poisoned on purpose" and back.p[1].size == 0
+    for k in (0, 2):
+        np.testing.assert_array_equal(back.p[k], results[k].p)
+
+
+def test_bad_files_give_errors_that_name_file_and_strand(tmp_path):
+    damaged = tmp_path / "damaged.npz"
+    damaged.write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(ValueError, match="damaged.npz: not a readable .npz strands file"):
+        load_strands(damaged)
+    points = np.zeros((4, 3))
+    points[:, 0] = [0.0, 0.01, 0.01, 0.02]  # vertex 2 duplicates vertex 1
+    np.savez(tmp_path / "dup.npz", points=np.r_[sagfree.scenes.horizontal(n=5).points, points],
+             offsets=np.array([0, 5, 9]))
+    with pytest.raises(ValueError, match=r"dup.npz: strand 1: edge 1 .* zero length"):
+        load_strands(tmp_path / "dup.npz")
+    np.savez(tmp_path / "offsets.npz", points=points, offsets=np.array([0, 7]))
+    with pytest.raises(ValueError, match="'offsets' must be non-decreasing integers from 0 to 4"):
+        load_strands(tmp_path / "offsets.npz")
+    with pytest.raises(ValueError, match="not a strands file .* nor a built-in scene"):
+        sagfree.load(tmp_path / "strands.txt")
+
+
+def test_optimize_then_simulate_on_the_command_line(tmp_path, capsys):
+    strands = [*sagfree.scenes.groom(2, 20, seed=3), sagfree.scenes.horizontal(n=15)]
+    save_strands(tmp_path / "in.npz", strands)
+    out = tmp_path / "params.npz"
+    assert main(["optimize", str(tmp_path / "in.npz"), "-o", str(out), "--jobs", "1", "--quiet"]) == 0
+    assert "converged 3" in capsys.readouterr().out
+    assert main(["simulate", str(tmp_path / "in.npz"), "--params", str(out), "--jobs", "1", "--quiet",
+                 "--steps", "50"]) == 0
+    text = capsys.readouterr().out
+    assert "3/3 strands stay within 1e-06" in text and "moves" not in text
+
+    naive = tmp_path / "naive.npz"
+    assert main(["optimize", str(tmp_path / "in.npz"), "-o", str(naive), "--solver", "naive", "--jobs", "1",
+                 "--quiet"]) == 1
+    capsys.readouterr()
+    assert main(["simulate", str(tmp_path / "in.npz"), "--params", str(naive), "--jobs", "1", "--quiet",
+                 "--steps", "50"]) == 1
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.rstrip().endswith("moves")]
+    assert len(rows) == 3
+
+
+def test_simulate_reports_unreadable_input_with_exit_code_2(tmp_path, capsys):
+    assert main(["simulate", "horizontal", "--params", str(tmp_path / "missing.npz")]) == 2
+    assert "missing.npz: no such file" in capsys.readouterr().err
