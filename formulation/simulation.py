@@ -22,10 +22,12 @@ iterate (exact in value: the transported frame is the same), which keeps the tra
 singularity at opposite tangents during large static sags.
 
 Newton (``newton_solve``): the free block of K = d2Phi/dq2 + mu M is banded (half bandwidth 10) and
-factored by LAPACK's banded Cholesky in O(n). mu is a Levenberg-Marquardt damping in the mass metric
-(1/s^2: mu M is the inertia of a pseudo time step 1/sqrt(mu)), adapted by the ratio rho of the actual
-to the predicted decrease of Phi: a step is taken when rho > ACCEPT; mu falls 4x when rho > 0.75 and
-rises 4x when rho < 0.25; below MU_MIN it is 0, i.e. pure Newton with quadratic convergence. The
+factored by LAPACK's banded Cholesky in O(n); an Armijo backtracking line search on Phi takes the
+step. mu is a Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is the inertia of a pseudo
+time step 1/sqrt(mu)): it falls 16x when a full step decreased Phi by more than 0.75 of the
+quadratic model's prediction, and rises 4x after a poorer or shortened step, or when the line search fails
+(MAX_HALVINGS halvings; the direction is then recomputed); below MU_MIN it is 0, i.e. pure Newton
+with quadratic convergence. The
 implicit-Euler steps start at mu = 0 (their own inertia W keeps Newton in range). The static solve
 starts at MU_STATIC: a pure Newton step from q* would move a drooping cantilever straight down,
 stretch it, and crawl; the damped steps follow an overdamped motion from q* instead, which also makes
@@ -61,11 +63,13 @@ STEP_TOLERANCE = 1e-10
 #: ... or (below the round-off floor) when the residual has not halved in STAGNATION_STEPS steps.
 STAGNATION_STEPS = 3
 #: Levenberg-Marquardt damping mu (1/s^2): smallest non-zero value, start of the static solve,
-#: accepted ratio of actual to predicted decrease, rejected steps in a row before giving up.
+#: directions rejected in a row (line search failed, or K indefinite) before giving up.
 MU_MIN = 1.0
 MU_STATIC = 1e6
-ACCEPT = 1e-4
 MAX_REJECTED = 40
+#: Line search: Armijo constant and step halvings before mu is raised instead.
+ARMIJO = 1e-4
+MAX_HALVINGS = 4
 #: Tolerance of sag_check: below the round-off floor, so that Newton always steps.
 CHECK_TOLERANCE = 1e-12
 #: Tangent turn (rad) above which the reference frames are re-based on the current iterate.
@@ -78,7 +82,8 @@ class NewtonSolve:
 
     residuals: list[float] = field(default_factory=list)
     steps: int = 0
-    rejected: int = 0       # trial steps rejected by the decrease ratio (mu raised)
+    line_search: int = 0    # steps the line search shortened (alpha < 1)
+    rejected: int = 0       # directions whose line search failed (mu raised)
     indefinite: int = 0     # factorizations that failed: K not positive definite (mu raised)
     converged: bool = False
     message: str = ""
@@ -269,15 +274,8 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
                 mu = max(4.0 * mu, MU_MIN)
                 continue
             d = -scipy.linalg.cho_solve_banded((factor, True), g)
-            trial = q.copy()
-            trial[s:] += d
-            with np.errstate(all="ignore"):
-                phi_trial = potential.value(trial)
-            predicted = -(g @ d + 0.5 * _quadratic_form(band, d))
-            actual = phi - phi_trial
-            resolvable = predicted > 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
-            ratio = actual / predicted if resolvable else 1.0
-            if np.isfinite(phi_trial) and ratio > ACCEPT:
+            alpha, trial, phi_trial = _line_search(potential, q, s, phi, g @ d, d)
+            if trial is not None:
                 break
             record.rejected += 1
             mu = max(4.0 * mu, MU_MIN)
@@ -285,16 +283,40 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
             record.message = (f"no acceptable step after {MAX_REJECTED} increases of mu to {mu:.3g} "
                               f"(residual {residual:.2e})")
             return q, record
+        if alpha == 1.0:  # the quadratic model held over the full step: how well?
+            predicted = -(g @ d + 0.5 * _quadratic_form(band, d))
+            resolvable = predicted > 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
+            ratio = (phi - phi_trial) / predicted if resolvable else 1.0
+        else:
+            ratio = 0.0
         q, phi = trial, phi_trial
         record.steps += 1
-        tiny_step = bool(np.all(np.abs(d) <= step_limit))
+        record.line_search += alpha < 1.0
+        tiny_step = bool(np.all(np.abs(alpha * d) <= step_limit))
         if ratio > 0.75:
-            mu = 0.25 * mu if mu > 4.0 * MU_MIN else 0.0
+            mu = mu / 16.0 if mu > 16.0 * MU_MIN else 0.0
         elif ratio < 0.25:
             mu = max(4.0 * mu, MU_MIN)
         if _max_turn(potential.frames, q) > REBASE_ANGLE:
             potential.frames = transport_frames(potential.frames, dofs.positions(q))
             phi = potential.value(q)
+
+
+def _line_search(potential: IncrementalPotential, q, s, phi, slope, d):
+    """Armijo backtracking from q along d (free DOFs from s): the first alpha = 1, 1/2, ... (at most
+    MAX_HALVINGS halvings) with Phi(q + alpha d) <= Phi(q) + ARMIJO alpha slope, or with a change of
+    Phi below rounding. Returns (alpha, q + alpha d, Phi there), or (0, None, None)."""
+    alpha = 1.0
+    for _ in range(MAX_HALVINGS + 1):
+        trial = q.copy()
+        trial[s:] += alpha * d
+        with np.errstate(all="ignore"):
+            phi_trial = potential.value(trial)
+        unresolvable = -alpha * slope <= 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
+        if np.isfinite(phi_trial) and (phi_trial <= phi + ARMIJO * alpha * slope or unresolvable):
+            return alpha, trial, phi_trial
+        alpha *= 0.5
+    return 0.0, None, None
 
 
 def _stagnated(residuals: list[float]) -> bool:

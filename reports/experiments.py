@@ -43,7 +43,8 @@ class ModelRun:
     bending_energy: energy (J) of the bend term alone when the strand is bent into an arc of radius L
     (0 means no bending resistance); sag, final: max and end-of-run displacement from q* over L;
     static_sag: the static equilibrium's displacement over L; newton: mean Newton steps per time step;
-    rejected: Levenberg-Marquardt rejections over the run; converged: every Newton solve converged.
+    rejected: Newton directions whose line search failed (mu raised), over the run; converged: every
+    Newton solve converged.
     """
 
     scene: str
