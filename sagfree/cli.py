@@ -1,13 +1,14 @@
 """The ``sagfree`` command line (DESIGN section 10).
 
 Exit codes: 0 success; 1 a check failed (``demo``, ``check``: a derivative mismatch; ``optimize``:
-a strand did not converge; ``simulate``: a strand moved more than ``--max-sag`` or was not checked);
-2 bad usage or unreadable input.
+a strand did not converge; ``simulate``: a strand moved more than ``--max-sag`` or was not checked;
+``report``: ``asc`` did not converge on a strand); 2 bad usage or unreadable input.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from sagfree.solvers.registry import SOLVERS
 
@@ -29,11 +30,10 @@ def _demo(args) -> int:
     print(f"groom: {summary.strands} strands, {summary.vertices} vertices")
     for solver, statuses in summary.statuses.items():
         counts = ", ".join(f"{k} {v}" for k, v in statuses.items() if v)
-        print(f"{solver:10} {summary.wall_time[solver]:7.2f} s   {counts}")
-    print("forward check (sag <= 1e-6 L): " + ", ".join(f"{name} {still}/{total} still"
-                                                          for name, (still, total) in summary.still.items()))
+        still, simulated = summary.still[solver]
+        print(f"{solver:10} {summary.wall_time[solver]:7.2f} s   {counts:34} still in simulation {still}/{simulated}")
     print(f"derivative checks: {summary.checks_passed}/{summary.checks_total} passed")
-    print(f"wrote {summary.report}")
+    print(f"demo took {summary.seconds:.0f} s; wrote {summary.report} and {summary.pdf}")
     return 0 if summary.checks_passed == summary.checks_total else 1
 
 
@@ -66,12 +66,12 @@ def _optimize(args) -> int:
     from sagfree.scenes.npz import save_parameters
     from sagfree.solvers.batch import optimize
 
-    strands = load(args.input)
+    strands = load(args.input, args.units)
     options = _problem_options(args)
     start = time.perf_counter()
     results = optimize(strands, solver=args.solver, jobs=args.jobs, progress=not args.quiet, **options)
     wall = time.perf_counter() - start
-    save_parameters(args.output, results, args.solver, options)
+    save_parameters(args.output, strands, results, args.solver, options)
     counts = {}
     for r in results:
         counts[r.status] = counts.get(r.status, 0) + 1
@@ -80,7 +80,7 @@ def _optimize(args) -> int:
     for k, r in enumerate(results):
         if r.status != "converged":
             print(f"  strand {k}: {r.status}: {r.message}")
-    print(f"wrote {args.output}")
+    print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')}")
     return 0 if counts.get("converged", 0) == len(results) else 1
 
 
@@ -89,11 +89,9 @@ def _simulate(args) -> int:
     from sagfree.scenes.npz import load_parameters
     from sagfree.solvers.batch import simulate_strands
 
-    strands = load(args.input)
+    strands = load(args.input, args.units)
     params = load_parameters(args.params)
-    if len(params.p) != len(strands):
-        raise ValueError(f"{args.params} holds parameters of {len(params.p)} strands, {args.input} has "
-                         f"{len(strands)}")
+    params.check_matches(strands, args.input)
     checks = simulate_strands(strands, params.p, args.steps, args.dt, args.damping, jobs=args.jobs,
                               progress=not args.quiet, **params.problem_options)
     header = (f"{'strand':>6} {'vertices':>8} {'optimized':>10} {'sag (m)':>10} {'sag / L':>9} "
@@ -111,6 +109,44 @@ def _simulate(args) -> int:
               + (f" ({check.message})" if check.message else ""))
     print(f"\n{len(strands) - moving}/{len(strands)} strands stay within {args.max_sag:g} of their length")
     return 1 if moving else 0
+
+
+def _input_arguments(command) -> None:
+    command.add_argument("input", metavar="INPUT", help="strands file (.npz, .hair, .data, .obj) or built-in "
+                         "scene name (default-groom, horizontal, flipped, helix, wavy, curly)")
+    command.add_argument("--units", default=None, choices=("m", "cm", "mm"),
+                         help="length unit of a .hair/.data/.obj file (default: cm for .hair, m otherwise)")
+
+
+def _simulation_arguments(command) -> None:
+    command.add_argument("--steps", type=int, default=200, help="implicit-Euler time steps (default 200)")
+    command.add_argument("--dt", type=float, default=1e-3, help="time step in s (default 1e-3)")
+
+
+def _batch_arguments(command) -> None:
+    command.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    command.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _report(args) -> int:
+    from sagfree.reports.report import write_report
+    from sagfree.reports.study import run_study
+    from sagfree.scenes import load
+
+    scenes = {name: load(name, args.units)[: args.max_strands] for name in
+              (n.strip() for n in args.scenes.split(",")) if name}
+    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    study = run_study(scenes, solvers, modes, steps=args.steps, dt=args.dt, jobs=args.jobs,
+                      progress=not args.quiet)
+    files = write_report(study, args.out, "sagfree report", pdf=not args.no_pdf)
+    for case in study.cases:
+        counts = ", ".join(f"{s} {n}" for s in ("converged", "infeasible", "max_iterations", "failed")
+                           if (n := sum(r.status == s for r in case.results)))
+        print(f"{case.scene:12} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {counts}")
+    print(f"wrote {files.markdown}" + (f" and {files.pdf}" if files.pdf else ""))
+    failed = any(r.status != "converged" for c in study.cases if c.solver == "asc" for r in c.results)
+    return 1 if failed else 0
 
 
 def parser() -> argparse.ArgumentParser:
@@ -145,33 +181,49 @@ def parser() -> argparse.ArgumentParser:
 
     opt = sub.add_parser("optimize", help="solve many strands; write their parameters to a .npz file",
                          description="Choose rest shape and stiffness so that every strand of INPUT is "
-                         "in static equilibrium; write the parameters (and each strand's status) to OUT. "
-                         "Exit code 1 if a strand did not converge.")
-    opt.add_argument("input", metavar="INPUT", help="strands file (.npz) or built-in scene name "
-                     "(default-groom, horizontal, flipped, helix, wavy, curly)")
+                         "in static equilibrium; write the parameters (per block, in physical units, and "
+                         "each strand's status) to OUT and a JSON summary next to it. Exit code 1 if a "
+                         "strand did not converge.")
+    _input_arguments(opt)
     opt.add_argument("-o", "--output", required=True, metavar="OUT", help="parameters file to write (.npz)")
     opt.add_argument("--solver", default="asc", choices=SOLVERS, help="solver (default asc)")
     opt.add_argument("--stiffness", default="element", choices=("element", "strand", "fixed"),
                      help="stiffness per element, one per strand, or fixed (default element)")
     opt.add_argument("--curvature", default="4d", choices=VARIANTS, help="curvature variant (default 4d)")
-    opt.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
-    opt.add_argument("--quiet", action="store_true", help="no progress bar")
+    _batch_arguments(opt)
     opt.set_defaults(run=_optimize)
 
     sim = sub.add_parser("simulate", help="forward-check optimized parameters: sag per strand",
                          description="Simulate every strand of INPUT with the parameters written by "
                          "'sagfree optimize' (implicit Euler from rest, then the static equilibrium) and "
                          "print its sag. Exit code 1 if a strand moves more than --max-sag of its length.")
-    sim.add_argument("input", metavar="INPUT", help="strands file or built-in scene name, as given to optimize")
+    _input_arguments(sim)
     sim.add_argument("--params", required=True, metavar="FILE", help="parameters file from 'sagfree optimize'")
-    sim.add_argument("--steps", type=int, default=200, help="time steps (default 200)")
-    sim.add_argument("--dt", type=float, default=1e-3, help="time step in s (default 1e-3)")
+    _simulation_arguments(sim)
     sim.add_argument("--damping", type=float, default=0.0, help="mass-proportional damping in 1/s (default 0)")
     sim.add_argument("--max-sag", type=float, default=1e-6,
                      help="largest displacement, relative to strand length, that counts as still (default 1e-6)")
-    sim.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
-    sim.add_argument("--quiet", action="store_true", help="no progress bar")
+    _batch_arguments(sim)
     sim.set_defaults(run=_simulate)
+
+    rep = sub.add_parser("report", help="a study (scenes x solvers x modes) written as report.md and report.pdf",
+                         description="Solve the chosen scenes with the chosen solvers in the chosen parameter "
+                         "modes, forward-check every result by simulation, and write report.md, report.pdf and "
+                         "their figures. Exit code 1 if asc did not converge on a strand.")
+    rep.add_argument("--out", default="sagfree-report", help="output directory (default: sagfree-report)")
+    rep.add_argument("--scenes", default="horizontal,helix,wavy,curly",
+                     help="comma-separated built-in scene names or strand files (default: "
+                     "horizontal,helix,wavy,curly)")
+    rep.add_argument("--units", default=None, help="length unit of hair files: m, cm or mm (default: the format's)")
+    rep.add_argument("--solvers", default="asc,ipopt,osqp,penalty-gn,naive", type=_solver_list,
+                     help="comma-separated solvers (default: all)")
+    rep.add_argument("--modes", default="element,strand", help="comma-separated stiffness modes (default: "
+                     "element,strand)")
+    rep.add_argument("--max-strands", type=int, default=None, help="solve only the first N strands of each scene")
+    rep.add_argument("--no-pdf", action="store_true", help="write report.md only")
+    _simulation_arguments(rep)
+    _batch_arguments(rep)
+    rep.set_defaults(run=_report)
     return top
 
 

@@ -1,7 +1,9 @@
-"""``sagfree.load`` / ``sagfree.save``: strands from a file or a built-in scene name.
+"""``sagfree.load`` / ``sagfree.save``: strands from a file (picked by extension) or a built-in scene.
 
-A source is a path to a strands file (``.npz``, scenes.npz; the hair formats join with the
-command-line issue) or the name of a built-in scene: ``default-groom`` (the demo's groom) or one of
+Formats: ``.npz`` (scenes.npz: SI units, material and angles per strand), ``.hair`` (cyHair, default
+unit cm), ``.data`` (USC-HairSalon, default unit m), ``.obj`` (OBJ polylines, default unit m). The
+hair formats carry at most a radius; ``units`` and material keywords (radius, youngs_modulus,
+shear_modulus, density) apply to them. Built-in scenes: ``default-groom`` (the demo's groom) and
 the single-strand reference scenes (DESIGN section 8).
 """
 from __future__ import annotations
@@ -10,9 +12,12 @@ from pathlib import Path
 
 from sagfree.formulation.strand import Strand
 
+from .cyhair import load_hair, save_hair
 from .groom import default_groom
 from .npz import load_strands, save_strands
+from .obj_polylines import load_obj, save_obj
 from .synthetic import curly, flipped, helix, horizontal, wavy
+from .usc_data import load_data, save_data
 
 BUILTIN = {
     "default-groom": default_groom,
@@ -22,24 +27,38 @@ BUILTIN = {
     "wavy": lambda: [wavy()],
     "curly": lambda: [curly()],
 }
-READERS = {".npz": load_strands}
-WRITERS = {".npz": save_strands}
+#: extension -> (reader, writer); the hair formats take units and material keywords
+FORMATS = {
+    ".npz": (load_strands, save_strands),
+    ".hair": (load_hair, save_hair),
+    ".data": (load_data, save_data),
+    ".obj": (load_obj, save_obj),
+}
 
 
-def load(source) -> list[Strand]:
-    """Strands from a file (picked by extension) or a built-in scene name."""
+def load(source, units: str | None = None, **material) -> list[Strand]:
+    """Strands from a file or a built-in scene name; ``units`` (m, cm, mm; None: the format's
+    default) and material keywords for the hair formats."""
     path = Path(source)
-    if path.suffix.lower() in READERS:
-        return READERS[path.suffix.lower()](path)
+    suffix = path.suffix.lower()
+    if suffix in FORMATS:
+        if suffix == ".npz":
+            if units not in (None, "m") or material:
+                raise ValueError(f"{path}: a .npz strands file is in SI units with its own material; "
+                                 "units and material options do not apply")
+            return load_strands(path)
+        return FORMATS[suffix][0](path, **({"units": units} if units else {}), **material)
     if str(source) in BUILTIN:
         return BUILTIN[str(source)]()
-    raise ValueError(f"{source}: not a strands file ({', '.join(READERS)}) nor a built-in scene "
+    raise ValueError(f"{source}: not a strands file ({', '.join(FORMATS)}) nor a built-in scene "
                      f"({', '.join(BUILTIN)})")
 
 
-def save(path, strands: list[Strand]) -> None:
-    """Write strands to a file whose format is picked by extension."""
+def save(path, strands: list[Strand], units: str | None = None) -> None:
+    """Write strands to a file whose format is picked by extension (``units`` for the hair formats)."""
     suffix = Path(path).suffix.lower()
-    if suffix not in WRITERS:
-        raise ValueError(f"{path}: cannot write strands as '{suffix}'; use one of {', '.join(WRITERS)}")
-    WRITERS[suffix](path, strands)
+    if suffix not in FORMATS:
+        raise ValueError(f"{path}: cannot write strands as '{suffix}'; use one of {', '.join(FORMATS)}")
+    if suffix == ".npz" and units not in (None, "m"):
+        raise ValueError(f"{path}: a .npz strands file is always in metres")
+    FORMATS[suffix][1](path, strands, **({"units": units} if units and suffix != ".npz" else {}))

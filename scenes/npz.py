@@ -6,19 +6,25 @@ Strands file: ``points`` (total vertices, 3) in m, all strands one after another
 ``theta`` (total edges) material angles, strand k owning n_k - 1 of them in order. Strands may have
 different vertex counts.
 
-Parameters file (written by ``sagfree optimize``): ``p`` (all strands' normalized parameters one
-after another), ``p_offsets`` (strands + 1), ``status`` and ``message`` per strand, ``solver``, and
-``problem_options``: the Problem options as JSON, so that a reader rebuilds the same Problem. A strand
-that failed keeps its slot (NaN parameters, its status and message). The command-line issue adds
-named arrays per block and a JSON summary next to these.
+Parameters file (written by ``sagfree optimize``):
+- per block, in physical units, all strands one after another: ``rest_length`` (m) and
+  ``stretch_modulus`` (Pa) per edge, strand k owning rows edge_offsets[k]:edge_offsets[k+1];
+  ``rest_curvature`` ((rows, 2), dimensionless), ``rest_twist`` (rad), ``bend_modulus`` and
+  ``twist_modulus`` (Pa) per interior vertex, rows vertex_offsets[k]:vertex_offsets[k+1];
+  NaN rows for a strand that failed;
+- per strand: ``p`` (the normalized parameters of the Problem layout, one after another, with
+  ``p_offsets``), ``status``, ``message``, ``vertex_counts``, ``lengths`` (m; a reader checks that it
+  is given the same strands);
+- ``solver`` and ``problem_options`` (the Problem options as JSON, so that a reader rebuilds the same
+  Problem).
+Next to it, ``<name>.json`` summarizes each strand's status, message, |c|_inf, residual force,
+R(p*), iterations, stiffening, stability and time.
 
 Reading checks every array and names the file, the array and the strand that is wrong.
 """
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,22 +32,11 @@ import numpy as np
 
 from sagfree.formulation.strand import Strand
 
+from .file_io import write_atomically
+
 MATERIAL_FIELDS = ("radius", "youngs_modulus", "shear_modulus", "density")
 STRANDS_VERSION = 1
 PARAMETERS_VERSION = 1
-
-
-def _write_atomically(path: Path, arrays: dict) -> None:
-    """np.savez into a temporary file next to ``path``, then rename over it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".npz")
-    try:
-        with os.fdopen(handle, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _open(path: Path, kind: str, required: tuple[str, ...]) -> dict:
@@ -78,7 +73,7 @@ def save_strands(path, strands: list[Strand]) -> None:
         "root": np.array([s.root for s in strands], dtype=str),
         **{f: np.array([getattr(s, f) for s in strands], dtype=float) for f in MATERIAL_FIELDS},
     }
-    _write_atomically(Path(path), arrays)
+    write_atomically(path, lambda f: np.savez(f, **arrays))
 
 
 def load_strands(path) -> list[Strand]:
@@ -115,47 +110,110 @@ def load_strands(path) -> list[Strand]:
     return strands
 
 
+#: Physical parameter arrays of a parameters file: name -> what each strand has one row per.
+PHYSICAL = {"rest_length": "edge", "stretch_modulus": "edge", "rest_curvature": "vertex",
+            "rest_twist": "vertex", "bend_modulus": "vertex", "twist_modulus": "vertex"}
+
+
 @dataclass
 class ParameterFile:
-    """Contents of a parameters ``.npz`` file: one p per strand (NaN-filled when the strand failed)."""
+    """Contents of a parameters ``.npz`` file.
+
+    p: one normalized parameter vector per strand (empty when the strand failed before its Problem
+    was built); status, message per strand; solver; problem_options; vertex_counts and lengths (m)
+    of the strands they were computed for; physical: name -> one array per strand (PHYSICAL; NaN
+    where the strand has no parameters).
+    """
 
     p: list[np.ndarray]
     status: list[str]
     message: list[str]
     solver: str
     problem_options: dict
+    vertex_counts: np.ndarray
+    lengths: np.ndarray
+    physical: dict[str, list[np.ndarray]]
+
+    def check_matches(self, strands, source: str = "the strands") -> None:
+        """Raise ValueError unless ``strands`` are those the parameters were computed for."""
+        if len(strands) != len(self.p):
+            raise ValueError(f"the parameters are for {len(self.p)} strands, {source} has {len(strands)}")
+        for k, strand in enumerate(strands):
+            if strand.n_vertices != self.vertex_counts[k] or not np.isclose(strand.length, self.lengths[k],
+                                                                             rtol=1e-6):
+                raise ValueError(
+                    f"strand {k} of {source} has {strand.n_vertices} vertices and length {strand.length:.6g} m, "
+                    f"the parameters were computed for {self.vertex_counts[k]} vertices and "
+                    f"{self.lengths[k]:.6g} m (same file and --units as for optimize?)")
 
 
-def save_parameters(path, results, solver: str, problem_options: dict) -> None:
-    """Write the Results of ``sagfree.optimize`` (one per strand, in order) to a parameters file."""
-    results = list(results)
-    sizes = [r.p.size for r in results]
+def save_parameters(path, strands, results, solver: str, problem_options: dict) -> None:
+    """Write the Results of ``sagfree.optimize`` (one per strand, in order) to a parameters file, and
+    a JSON summary (same name, ``.json``) with each strand's status, residuals, stiffening, time."""
+    strands, results = list(strands), list(results)
+    counts = np.array([s.n_vertices for s in strands], dtype=np.int64)
+    rows = {"edge": counts - 1, "vertex": counts - 2}
     arrays = {
         "format": np.array(f"sagfree-parameters-{PARAMETERS_VERSION}"),
         "p": np.concatenate([r.p for r in results]) if results else np.zeros(0),
-        "p_offsets": np.r_[0, np.cumsum(sizes)].astype(np.int64),
+        "p_offsets": np.r_[0, np.cumsum([r.p.size for r in results])].astype(np.int64),
         "status": np.array([r.status for r in results], dtype=str),
         "message": np.array([r.message for r in results], dtype=str),
         "solver": np.array(solver),
         "problem_options": np.array(json.dumps(problem_options, sort_keys=True)),
+        "vertex_counts": counts,
+        "lengths": np.array([s.length for s in strands]),
+        "edge_offsets": np.r_[0, np.cumsum(rows["edge"])].astype(np.int64),
+        "vertex_offsets": np.r_[0, np.cumsum(rows["vertex"])].astype(np.int64),
     }
-    _write_atomically(Path(path), arrays)
+    for name, kind in PHYSICAL.items():
+        width = (2,) if name == "rest_curvature" else ()
+        parts = [r.physical[name] if name in r.physical else np.full((rows[kind][k], *width), np.nan)
+                 for k, r in enumerate(results)]
+        arrays[name] = np.concatenate(parts) if parts else np.zeros((0, *width))
+    write_atomically(path, lambda f: np.savez(f, **arrays))
+    summary = {"solver": solver, "problem_options": problem_options, "strands": [
+        {"strand": k, "vertices": int(counts[k]), "status": r.status, "message": r.message,
+         "residual_inf": r.residual_inf, "max_force_N": r.max_force, "objective": r.objective,
+         "time_s": r.time, "iterations": r.iterations, "stiffening": r.stiffening,
+         "min_eigenvalue": r.min_eigenvalue, "stable": r.stable} for k, r in enumerate(results)]}
+    text = json.dumps(_finite_or_none(summary), indent=1, allow_nan=False)
+    write_atomically(Path(path).with_suffix(".json"), lambda f: f.write(text.encode()))
 
 
 def load_parameters(path) -> ParameterFile:
     """Read a parameters file written by ``save_parameters``."""
     path = Path(path)
-    arrays = _open(path, "parameters", ("p", "p_offsets", "status", "problem_options"))
+    arrays = _open(path, "parameters", ("p", "p_offsets", "status", "problem_options", "vertex_counts",
+                                        "lengths", "edge_offsets", "vertex_offsets", *PHYSICAL))
     p = np.asarray(arrays["p"], dtype=float)
     offsets = _offsets(path, arrays, "p_offsets", p.size)
     count = offsets.size - 1
     status = [str(s) for s in np.atleast_1d(arrays["status"])]
     message = [str(s) for s in np.atleast_1d(arrays.get("message", np.full(count, "")))]
-    if len(status) != count or len(message) != count:
-        raise ValueError(f"{path}: 'status' and 'message' must have one entry per strand ({count})")
+    counts, lengths = np.asarray(arrays["vertex_counts"]), np.asarray(arrays["lengths"], dtype=float)
+    if not len(status) == len(message) == counts.size == lengths.size == count:
+        raise ValueError(f"{path}: 'status', 'message', 'vertex_counts' and 'lengths' must have one entry per "
+                         f"strand ({count})")
     try:
         options = json.loads(str(arrays["problem_options"]))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: 'problem_options' is not valid JSON ({exc})") from None
+    physical = {}
+    for name, kind in PHYSICAL.items():
+        values = np.asarray(arrays[name], dtype=float)
+        rows = _offsets(path, arrays, f"{kind}_offsets", len(values))
+        physical[name] = [values[rows[k]: rows[k + 1]] for k in range(count)]
     return ParameterFile([p[offsets[k]: offsets[k + 1]] for k in range(count)], status, message,
-                         str(arrays.get("solver", "unknown")), options)
+                         str(arrays.get("solver", "unknown")), options, counts, lengths, physical)
+
+
+def _finite_or_none(value):
+    """The summary with NaN and infinities as null (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite_or_none(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value

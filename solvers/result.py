@@ -32,7 +32,9 @@ class Result:
     vertex (N); objective: R(p); stiffening: per stiffness block {max, mean, stiffened} (ratio to the
     specified stiffness, share of elements above 1.01); rest_change: per rest block {max, mean} absolute
     change from p0 and {box} the largest change over the box half-width; time (s); min_eigenvalue of the
-    free-DOF Hessian at q* and stable = min_eigenvalue > 0; history: |c|_inf after each primal step.
+    free-DOF Hessian at q* and stable = min_eigenvalue > 0; history: |c|_inf after each primal step;
+    physical: the parameters in physical units (Problem.physical: rest lengths m, rest curvatures,
+    rest twists rad, moduli Pa).
     """
 
     solver: str
@@ -49,6 +51,7 @@ class Result:
     min_eigenvalue: float
     stable: bool
     history: list[float] = field(default_factory=list)
+    physical: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -108,7 +111,7 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
     return Result(solver, p, status, message, dict(iterations),
                   float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
                   problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
-                  time, eigenvalue, stable, list(history or []))
+                  time, eigenvalue, stable, list(history or []), problem.physical(p))
 
 
 def iteration_summary(results: list[Result]) -> str:

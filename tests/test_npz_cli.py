@@ -1,4 +1,6 @@
 """Strands and parameters as .npz files, and `sagfree optimize` / `sagfree simulate` on them."""
+import json
+
 import numpy as np
 import pytest
 
@@ -31,13 +33,24 @@ def test_parameters_round_trip_keeps_failed_strands(tmp_path):
     strands = mixed_strands()
     results = sagfree.optimize(strands, jobs=1)
     results[1] = sagfree.solvers.result.failed_result("asc", "poisoned on purpose")
-    save_parameters(tmp_path / "p.npz", results, "asc", {"stiffness": "element"})
+    save_parameters(tmp_path / "p.npz", strands, results, "asc", {"stiffness": "element"})
     back = load_parameters(tmp_path / "p.npz")
     assert back.solver == "asc" and back.problem_options == {"stiffness": "element"}
     assert back.status == [r.status for r in results]
     assert back.message[1] == "poisoned on purpose" and back.p[1].size == 0
+    back.check_matches(strands)
     for k in (0, 2):
         np.testing.assert_array_equal(back.p[k], results[k].p)
+        for name, values in results[k].physical.items():  # named arrays per block, per strand
+            np.testing.assert_array_equal(back.physical[name][k], values)
+    assert back.physical["rest_length"][1].shape == (strands[1].n_vertices - 1,)
+    assert np.isnan(back.physical["bend_modulus"][1]).all()
+    summary = json.loads((tmp_path / "p.json").read_text())
+    assert [s["status"] for s in summary["strands"]] == back.status
+    assert summary["strands"][0]["residual_inf"] == results[0].residual_inf
+    assert summary["strands"][1]["residual_inf"] is None  # NaN as null: strict JSON
+    with pytest.raises(ValueError, match="strand 0 of the strands has 13 vertices"):
+        back.check_matches([sagfree.scenes.horizontal(n=13), *strands[1:]])
 
 
 def test_bad_files_give_errors_that_name_file_and_strand(tmp_path):

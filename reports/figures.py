@@ -1,0 +1,180 @@
+"""Figures of a study (matplotlib, written as PNG): convergence of every solver, stiffening along the
+strand, strands coloured by stiffening (like the supplement's Fig. 4), sag naive vs optimized, and
+time against strand size.
+
+Stiffening is the bend modulus over the strand's Young's modulus at each interior vertex (1 =
+as specified), read through ``Problem.physical`` so that every mode (element, strand) is comparable.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+
+from sagfree.formulation.problem import Problem  # noqa: E402
+
+from .study import Study  # noqa: E402
+
+DPI = 130
+#: Solvers whose parameters include stiffness (naive and penalty-gn keep p0's).
+STIFFENING_SOLVERS = ("asc", "ipopt", "osqp")
+MAX_DRAWN = 200
+#: Sags below this (including exactly 0: Newton found nothing to correct) are drawn at it.
+SAG_FLOOR = 1e-14
+
+
+def bend_multiplier(strand, mode: str, p: np.ndarray) -> np.ndarray:
+    """Bend modulus / E per interior vertex."""
+    problem = Problem(strand, stiffness=mode)
+    return problem.physical(p)["bend_modulus"] / strand.youngs_modulus
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def _scene_axes(count: int, width: float = 4.2, height: float = 3.0):
+    columns = min(count, 3)
+    rows = -(-count // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(width * columns, height * rows), squeeze=False)
+    for ax in axes.ravel()[count:]:
+        ax.set_visible(False)
+    return fig, axes.ravel()
+
+
+def convergence(study: Study, path: Path) -> Path:
+    """|c|_inf after each primal step (each solver's own history), first strand of every scene."""
+    scenes = list(study.scenes)
+    fig, axes = _scene_axes(len(scenes))
+    for ax, scene in zip(axes, scenes):
+        for case in (c for c in study.cases if c.scene == scene and c.results):
+            history = [h for h in case.results[0].history if h > 0]
+            if history:
+                ax.semilogy(np.arange(len(history)), history, marker=".", markersize=3, label=case.label)
+        ax.axhline(1e-8, color="gray", linestyle=":", linewidth=0.8)
+        ax.set(title=f"{scene}: strand 0", xlabel="primal step (own kind per solver)", ylabel="|c|_inf")
+        ax.legend(fontsize=6)
+    return _save(fig, path)
+
+
+def stiffening_profile(study: Study, path: Path) -> Path:
+    """Bend multiplier along the first strand of every scene, per solver and mode."""
+    scenes = list(study.scenes)
+    fig, axes = _scene_axes(len(scenes))
+    for ax, scene in zip(axes, scenes):
+        strand = study.scenes[scene][0]
+        for case in study.cases:
+            if case.scene == scene and case.solver in STIFFENING_SOLVERS and case.results \
+                    and case.results[0].status == "converged":
+                s = bend_multiplier(strand, case.mode, case.results[0].p)
+                ax.plot(np.linspace(0, 1, s.size + 2)[1:-1], s, marker=".", markersize=3, label=case.label)
+        ax.axhline(1.0, color="gray", linestyle=":", linewidth=0.8)
+        ax.set(title=f"{scene}: strand 0", xlabel="arc length / L (root at 0)", ylabel="bend modulus / E")
+        ax.legend(fontsize=6)
+    return _save(fig, path)
+
+
+def strands_by_stiffening(study: Study, path: Path, solver: str = "asc") -> Path:
+    """Every scene's strands (side view, x-z), each segment coloured by its bend multiplier."""
+    scenes = list(study.scenes)
+    fig, axes = _scene_axes(len(scenes), 4.2, 4.2)
+    norm = matplotlib.colors.LogNorm(1.0, 10.0)
+    for ax, scene in zip(axes, scenes):
+        case = study.case(scene, solver, "element") or next(
+            (c for c in study.cases if c.scene == scene and c.solver == solver), None)
+        strands = study.scenes[scene][:MAX_DRAWN]
+        segments, colours = [], []
+        for k, strand in enumerate(strands):
+            x = strand.points[:, [0, 2]]
+            if case is not None and k < len(case.results) and case.results[k].status == "converged":
+                s = bend_multiplier(strand, case.mode, case.results[k].p)
+                per_edge = np.r_[s[0], np.maximum(s[:-1], s[1:]), s[-1]]
+            else:
+                per_edge = np.full(len(x) - 1, np.nan)
+            segments.extend(np.stack([x[:-1], x[1:]], axis=1))
+            colours.extend(per_edge)
+        lines = LineCollection(segments, cmap="viridis", norm=norm, linewidths=2.0 if len(strands) < 10 else 0.6)
+        lines.set_array(np.clip(np.array(colours), 1.0, 10.0))
+        ax.add_collection(lines)
+        ax.autoscale()
+        ax.set_aspect("equal")
+        ax.set(title=f"{scene}: {case.label if case else 'not solved'}", xlabel="x (m)", ylabel="z (m)")
+    fig.colorbar(lines, ax=list(axes[: len(scenes)]), label="bend modulus / E", shrink=0.8)
+    fig.savefig(path, dpi=DPI, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def sag_comparison(study: Study, path: Path) -> Path:
+    """Every simulated strand's sag over L (the larger of simulation and static solve), one column of
+    dots per case; green: the solver converged on that strand. Log scale, zero drawn at FLOOR."""
+    cases = [c for c in study.cases if c.checks]
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.6 * len(cases) + 2), 3.4))
+    rng = np.random.default_rng(0)
+    for k, case in enumerate(cases):
+        sag = np.array([max(ch.relative_sag, ch.static_sag if np.isfinite(ch.static_sag) else 0.0)
+                        for ch in case.checks])
+        ok = np.array([r.status == "converged" for r in case.results[: len(sag)]])
+        x = k + rng.uniform(-0.25, 0.25, sag.size)
+        y = np.maximum(np.nan_to_num(sag, nan=1.0), SAG_FLOOR)
+        ax.scatter(x[ok], y[ok], s=6, color="tab:green")
+        ax.scatter(x[~ok], y[~ok], s=6, color="tab:red")
+    ax.set_yscale("log")
+    ax.axhline(1e-6, color="gray", linestyle=":", linewidth=0.8)
+    ax.set_xticks(np.arange(len(cases)), [f"{c.scene}\n{c.label}" for c in cases], rotation=60, ha="right",
+                  fontsize=6)
+    ax.set(ylabel="sag / L", title="sag per strand (green: solver converged; dotted: 1e-6)")
+    return _save(fig, path)
+
+
+def time_against_size(study: Study, path: Path) -> Path:
+    """Time per strand against its vertex count, per solver and mode (log-log)."""
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    series: dict[str, list[tuple[int, float]]] = {}
+    for case in study.cases:
+        strands = study.scenes[case.scene]
+        series.setdefault(case.label, []).extend(
+            (strands[k].n_vertices, r.time) for k, r in enumerate(case.results))
+    for label, points in series.items():
+        sizes = np.array(sorted({n for n, _ in points}))
+        means = [np.mean([t for n, t in points if n == size]) for size in sizes]
+        ax.loglog(sizes, 1e3 * np.array(means), marker="o", markersize=3, label=label)
+    ax.set(xlabel="vertices per strand", ylabel="ms per strand (mean)", title="time against strand size")
+    ax.legend(fontsize=6)
+    return _save(fig, path)
+
+
+FIGURES = {
+    "convergence": (convergence, "Convergence: |c|_inf after each primal step of every solver (asc: "
+                    "Gauss-Newton steps; ipopt: iterations; osqp: SQP steps; penalty-gn: Gauss-Newton), on "
+                    "the first strand of each scene. Dotted: the 1e-8 tolerance."),
+    "stiffening": (stiffening_profile, "Stiffening along the strand: bend modulus over the specified "
+                   "Young's modulus at each interior vertex, first strand of each scene."),
+    "strands": (strands_by_stiffening, "Strands seen from the side (x-z), coloured by the bend "
+                "multiplier of our solver's parameters (per element where the study has that mode), as "
+                "in the supplement's Fig. 4."),
+    "sag": (sag_comparison, "Sag over strand length of every simulated strand (the larger of simulation and "
+            "static solve), per case; red: strands the solver did not converge on; values below 1e-14 "
+            "(or 0) drawn at 1e-14."),
+    "time": (time_against_size, "Mean time per strand against strand size."),
+}
+
+
+def draw_all(study: Study, directory: Path, sizes: Study | None = None) -> dict[str, Path]:
+    """Every figure of FIGURES that the study has data for, as PNGs in ``directory``; the time figure
+    from ``sizes`` (a study of the same strands at several sizes) when given."""
+    directory.mkdir(parents=True, exist_ok=True)
+    drawn = {}
+    for name, (function, _) in FIGURES.items():
+        if name == "sag" and not any(c.checks for c in study.cases):
+            continue
+        drawn[name] = function(sizes if name == "time" and sizes is not None else study, directory / f"{name}.png")
+    return drawn

@@ -1,0 +1,198 @@
+"""A study's report: ``report.md`` and ``report.pdf`` with the same tables and figures (DESIGN 9).
+
+Tables (one row per case = scene x mode x solver, aggregated over its strands):
+1. convergence: statuses, time, iterations of each kind, factorizations, |c|_inf, residual force, R;
+2. parameters: stiffening per block (max and mean ratio to the specified value, share of elements
+   above 1.01) and the largest rest-shape change per block (as a share of its box half-width);
+3. forward check: sag in simulation and in the static solve (over L), strands that stay within
+   1e-6 L, Newton steps per time step, smallest Hessian eigenvalue, stable rest states;
+4. every solver against ``asc`` on the same strands: time ratio and R gap;
+5. per strand (small studies only): the numbers of each Result and SagCheck.
+Then the figures (figures module) and the versions of everything that produced the numbers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.image import imread
+
+from sagfree.solvers.result import STATUSES, iteration_summary
+
+from .document import Document, Figure, Heading, Paragraph, Table, to_markdown, write_pdf
+from .environment import versions
+from .figures import FIGURES, draw_all
+from .study import Study
+
+#: A strand counts as still when it moves at most this share of its length (simulation and static).
+STILL = 1e-6
+#: A PNG this many pixels wide fills the PDF's text width; narrower ones are scaled alike.
+FULL_WIDTH_PIXELS = 1400
+#: Studies with at most this many (case, strand) rows get the per-strand table.
+PER_STRAND_ROWS = 60
+
+
+@dataclass
+class ReportFiles:
+    markdown: Path
+    pdf: Path | None
+    figures: dict[str, Path]
+
+
+def _statuses(results) -> str:
+    return ", ".join(f"{s} {n}" for s in STATUSES if (n := sum(r.status == s for r in results)))
+
+
+def _nanmax(values) -> float:
+    values = [v for v in values if np.isfinite(v)]
+    return float(max(values)) if values else float("nan")
+
+
+def convergence_rows(study: Study) -> list[list]:
+    rows = []
+    for c in study.cases:
+        res = c.results
+        rows.append([c.scene, c.mode, c.solver, len(res), _statuses(res), 1e3 * float(np.mean([r.time for r in res])),
+                     c.wall, iteration_summary(res),
+                     float(np.mean([r.iterations.get("factorizations", 0) for r in res])),
+                     _nanmax(r.residual_inf for r in res), _nanmax(r.max_force for r in res),
+                     float(np.nanmean([r.objective for r in res]))])
+    return rows
+
+
+def parameter_rows(study: Study) -> list[list]:
+    rows = []
+    for c in study.cases:
+        ok = [r for r in c.results if r.status == "converged"] or c.results
+        cells = []
+        for block in ("bend_stiffness", "stretch_stiffness", "twist_stiffness"):
+            stats = [r.stiffening[block] for r in ok if block in r.stiffening]
+            if not stats and block == "bend_stiffness":  # strand mode: one multiplier for everything
+                stats = [r.stiffening["strand_stiffness"] for r in ok if "strand_stiffness" in r.stiffening]
+            cells.append(f"{_nanmax(s['max'] for s in stats):.3g} / {np.mean([s['mean'] for s in stats]):.3g} / "
+                         f"{100 * np.mean([s['stiffened'] for s in stats]):.0f}%" if stats else "-")
+        for block in ("rest_length", "rest_curvature", "rest_twist"):
+            stats = [r.rest_change[block] for r in ok if block in r.rest_change]
+            cells.append(f"{_nanmax(s['max'] for s in stats):.2e} ({100 * _nanmax(s['box'] for s in stats):.0f}%)"
+                         if stats else "-")
+        rows.append([c.scene, c.mode, c.solver, len(ok), *cells])
+    return rows
+
+
+def check_rows(study: Study) -> list[list]:
+    rows = []
+    for c in study.cases:
+        checks, res = c.checks, c.results
+        still = sum(not ch.sags(STILL) for ch in checks)
+        rows.append([c.scene, c.mode, c.solver, f"{still}/{len(checks)}" if checks else "-",
+                     _nanmax(ch.relative_sag for ch in checks), _nanmax(ch.static_sag for ch in checks),
+                     float(np.mean([ch.newton for ch in checks])) if checks else float("nan"),
+                     float(np.nanmin([r.min_eigenvalue for r in res])) if res else float("nan"),
+                     f"{sum(r.stable for r in res)}/{len(res)}"])
+    return rows
+
+
+def comparison_rows(study: Study) -> list[list]:
+    """Each case against asc in the same scene and mode, on the strands both solved."""
+    rows = []
+    for c in study.cases:
+        reference = study.case(c.scene, "asc", c.mode)
+        if reference is None or c.solver == "asc":
+            continue
+        pairs = list(zip(c.results, reference.results))
+        ratio = np.mean([r.time for r, _ in pairs]) / np.mean([a.time for _, a in pairs])
+        gaps = [abs(r.objective / a.objective - 1) for r, a in pairs
+                if r.status == a.status == "converged" and a.objective > 0]
+        rows.append([c.scene, c.mode, c.solver, len(pairs), _statuses([r for r, _ in pairs]),
+                     _statuses([a for _, a in pairs]), float(ratio), max(gaps) if gaps else "-"])
+    return rows
+
+
+def strand_rows(study: Study) -> list[list]:
+    rows = []
+    for c in study.cases:
+        for k, r in enumerate(c.results):
+            bend = r.stiffening.get("bend_stiffness", r.stiffening.get("strand_stiffness", {}))
+            check = c.checks[k] if k < len(c.checks) else None
+            rows.append([c.scene, k, c.mode, c.solver, r.status, 1e3 * r.time, r.residual_inf, r.max_force,
+                         r.objective, bend.get("max", float("nan")),
+                         check.relative_sag if check else float("nan"),
+                         check.static_sag if check else float("nan"), r.min_eigenvalue])
+    return rows
+
+
+def _setup(study: Study) -> str:
+    scenes = "; ".join(f"`{name}`: {len(s)} strands of {min(x.n_vertices for x in s)}"
+                       + (f"-{max(x.n_vertices for x in s)}" if len({x.n_vertices for x in s}) > 1 else "")
+                       + " vertices" for name, s in study.scenes.items())
+    st = study.settings
+    limits = ", ".join(f"{k} on the first {v}" for k, v in st.get("limits", {}).items())
+    checks = ", ".join(f"{k} on the first {v}" for k, v in st.get("check_limits", {}).items())
+    return (f"Scenes: {scenes}. Solvers: {', '.join(st['solvers'])}"
+            + (f" ({limits} strands of each scene)" if limits else "") + f"; parameter modes: "
+            f"{', '.join(st['modes'])}. Forward check: {st['steps']} implicit-Euler steps of {st['dt']:g} s "
+            "from rest at the groomed shape, then the static equilibrium from it, Newton tolerance below "
+            "the round-off floor" + (f" ({checks} strands)" if checks else "") + ". Times are per strand "
+            "in one process; wall times are for the whole batch on all cores.")
+
+
+def build_document(study: Study, title: str, intro: list | None = None, figures: dict[str, Path] | None = None,
+                   directory: Path | None = None, extra: list | None = None) -> Document:
+    """The report of ``study``; ``intro`` and ``extra`` blocks go before and after the study tables."""
+    doc = Document(title)
+    doc.add(*(intro or []), Heading("Setup"), Paragraph(_setup(study)))
+    doc.add(Heading("Convergence"), Paragraph(
+        "Means per strand; |c|_inf and the residual force (N) are maxima over the strands. `converged` "
+        "means |c|_inf <= 1e-8 and a KKT distance <= 1e-5 for every solver."),
+        Table(["scene", "mode", "solver", "strands", "statuses", "ms/strand", "wall s", "iterations (mean)",
+               "factorizations", "max abs c", "max force N", "mean R"], convergence_rows(study)))
+    doc.add(Heading("Parameters"), Paragraph(
+        "Stiffening per block over converged strands: max / mean ratio to the specified stiffness / share "
+        "of elements above 1.01 (strand mode: the one multiplier, shown as bend; twist: `-` where it follows "
+        "bend, the default). Rest-shape change: the "
+        "largest absolute change of the block's normalized parameter (in brackets: as a share of its box "
+        "half-width)."),
+        Table(["scene", "mode", "solver", "strands", "bend", "stretch", "twist", "rest length",
+               "rest curvature", "rest twist"], parameter_rows(study)))
+    if any(c.checks for c in study.cases):
+        doc.add(Heading("Forward check"), Paragraph(
+            f"`still`: strands that moved at most {STILL:g} of their length both in simulation and in the "
+            "static solve. Sags are maxima over the strands, relative to the strand length. The smallest "
+            "eigenvalue of the free-DOF Hessian at the groomed shape is positive for a stable rest state."),
+            Table(["scene", "mode", "solver", "still", "max sag / L", "max static sag / L",
+                   "Newton per step", "min eigenvalue", "stable"], check_rows(study)))
+    compared = comparison_rows(study)
+    if compared:
+        doc.add(Heading("Against asc"), Paragraph(
+            "Each solver on the strands it solved, against `asc` on the same strands: mean time ratio, and "
+            "the largest |R / R_asc - 1| where both converged."),
+            Table(["scene", "mode", "solver", "strands", "statuses", "asc statuses", "time / asc", "R gap"],
+                  compared))
+    rows = strand_rows(study)
+    if len(rows) <= PER_STRAND_ROWS:
+        doc.add(Heading("Per strand"), Table(["scene", "strand", "mode", "solver", "status", "ms", "abs c",
+                                              "max force N", "R", "bend max", "sag / L", "static sag / L",
+                                              "min eigenvalue"], rows))
+    if figures:
+        doc.add(Heading("Figures"))
+        for name, path in figures.items():
+            width = min(1.0, imread(path).shape[1] / FULL_WIDTH_PIXELS)
+            doc.add(Figure(str(path.relative_to(directory)) if directory else str(path), FIGURES[name][1], width))
+    doc.add(*(extra or []))
+    doc.add(Heading("Versions"), Table(["component", "version"], [[k, v] for k, v in versions().items()]))
+    return doc
+
+
+def write_report(study: Study, out_dir, title: str = "sagfree report", intro: list | None = None,
+                 extra: list | None = None, pdf: bool = True, sizes: Study | None = None) -> ReportFiles:
+    """Draw the figures and write report.md (and report.pdf) into ``out_dir``; ``sizes``: a study of
+    strands at several sizes for the time figure (default: the study itself)."""
+    directory = Path(out_dir)
+    directory.mkdir(parents=True, exist_ok=True)
+    figures = draw_all(study, directory / "figures", sizes)
+    document = build_document(study, title, intro, figures, directory, extra)
+    markdown = directory / "report.md"
+    markdown.write_text(to_markdown(document))
+    return ReportFiles(markdown, write_pdf(document, directory) if pdf else None, figures)
+

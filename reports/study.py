@@ -1,0 +1,90 @@
+"""Studies: scenes x solvers x parameter modes, solved through ``sagfree.optimize`` and forward-checked
+by simulation (DESIGN section 9).
+
+A study keeps every Result and every SagCheck; the report module turns it into tables and figures.
+``limits`` caps how many strands of a scene a solver solves (the slow baselines on a groom), and
+``check_limits`` how many of them are simulated; a case always covers the FIRST strands of its scene,
+so cases of the same scene compare on the same strands.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from sagfree.formulation.simulation import SagCheck
+from sagfree.formulation.strand import Strand
+from sagfree.solvers.batch import optimize, simulate_strands
+from sagfree.solvers.registry import SOLVERS, solver_function
+from sagfree.solvers.result import Result
+
+MODES = ("element", "strand")
+
+
+@dataclass
+class Case:
+    """One solver in one parameter mode on (the first strands of) one scene.
+
+    results: one Result per solved strand; checks: one SagCheck per simulated strand (the first
+    ones); wall, check_wall: wall time (s) of the batch solve and of the simulations.
+    """
+
+    scene: str
+    solver: str
+    mode: str
+    results: list[Result]
+    checks: list[SagCheck]
+    wall: float
+    check_wall: float
+
+    @property
+    def label(self) -> str:
+        return f"{self.solver} ({self.mode})"
+
+
+@dataclass
+class Study:
+    """scenes: name -> strands; cases in the order scene, mode, solver; settings of the run."""
+
+    scenes: dict[str, list[Strand]]
+    cases: list[Case] = field(default_factory=list)
+    settings: dict = field(default_factory=dict)
+
+    def case(self, scene: str, solver: str, mode: str) -> Case | None:
+        return next((c for c in self.cases if (c.scene, c.solver, c.mode) == (scene, solver, mode)), None)
+
+
+def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("element",),
+              simulate: bool = True, steps: int = 200, dt: float = 1e-3, jobs: int | None = None,
+              progress: bool = False, limits: dict[str, int] | None = None,
+              check_limits: dict[str, int] | None = None, solver_options: dict | None = None) -> Study:
+    """Solve every scene with every solver in every mode (``stiffness`` of the Problem) and simulate.
+
+    limits / check_limits: solver -> largest number of strands solved / simulated per scene (default:
+    all). solver_options: solver -> keyword arguments of the solver.
+    """
+    for name in solvers:
+        solver_function(name)  # unknown or unavailable solvers fail before any work
+    unknown = set(modes) - {"element", "strand", "fixed"}
+    if unknown:
+        raise ValueError(f"unknown parameter mode(s) {sorted(unknown)}; choose from element, strand, fixed")
+    limits, check_limits, solver_options = limits or {}, check_limits or {}, solver_options or {}
+    study = Study(dict(scenes), settings=dict(solvers=list(solvers), modes=list(modes), simulate=simulate,
+                                              steps=steps, dt=dt, limits=dict(limits),
+                                              check_limits=dict(check_limits)))
+    for scene, strands in scenes.items():
+        for mode in modes:
+            for solver in solvers:
+                batch = strands[: limits.get(solver, len(strands))]
+                start = time.perf_counter()
+                results = optimize(batch, solver=solver, jobs=jobs, progress=progress, stiffness=mode,
+                                   solver_options=solver_options.get(solver))
+                wall = time.perf_counter() - start
+                checks, check_wall = [], 0.0
+                if simulate:
+                    count = min(len(batch), check_limits.get(solver, len(batch)))
+                    start = time.perf_counter()
+                    checks = simulate_strands(batch[:count], [r.p for r in results[:count]], steps, dt,
+                                              jobs=jobs, progress=progress, stiffness=mode)
+                    check_wall = time.perf_counter() - start
+                study.cases.append(Case(scene, solver, mode, results, checks, wall, check_wall))
+    return study
