@@ -8,10 +8,12 @@ Tables (one row per case = scene x mode x solver, aggregated over its strands):
    1e-6 L, Newton steps per time step, smallest Hessian eigenvalue, stable rest states;
 4. every solver against ``asc`` on the same strands: time ratio and R gap;
 5. per strand (small studies only): the numbers of each Result and SagCheck.
-Then the figures (figures module) and the versions of everything that produced the numbers.
+Then the figures (figures module) and the versions of everything that produced the numbers. Every
+(case, strand) row also goes to ``results.csv`` (Study.rows), whatever the study's size.
 """
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -194,5 +196,16 @@ def write_report(study: Study, out_dir, title: str = "sagfree report", intro: li
     document = build_document(study, title, intro, figures, directory, extra)
     markdown = directory / "report.md"
     markdown.write_text(to_markdown(document))
+    write_csv(study, directory / "results.csv")
     return ReportFiles(markdown, write_pdf(document, directory) if pdf else None, figures)
+
+
+def write_csv(study: Study, path: Path) -> None:
+    """``Study.rows`` as CSV (columns: the union over rows; absent counts are empty)."""
+    rows = study.rows()
+    columns = list(dict.fromkeys(key for row in rows for key in row))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, columns)
+        writer.writeheader()
+        writer.writerows(rows)
 

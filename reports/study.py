@@ -52,6 +52,26 @@ class Study:
     def case(self, scene: str, solver: str, mode: str) -> Case | None:
         return next((c for c in self.cases if (c.scene, c.solver, c.mode) == (scene, solver, mode)), None)
 
+    def rows(self) -> list[dict]:
+        """The whole study as one table: a row per (case, strand) with its Result and SagCheck numbers."""
+        rows = []
+        for c in self.cases:
+            for k, r in enumerate(c.results):
+                check = c.checks[k] if k < len(c.checks) else None
+                bend = r.stiffening.get("bend_stiffness", r.stiffening.get("strand_stiffness", {}))
+                rows.append({
+                    "scene": c.scene, "strand": k, "vertices": self.scenes[c.scene][k].n_vertices,
+                    "mode": c.mode, "solver": c.solver, "status": r.status, "time_s": r.time,
+                    **{f"iterations_{name}": count for name, count in r.iterations.items()},
+                    "residual_inf": r.residual_inf, "max_force_N": r.max_force, "objective": r.objective,
+                    "bend_max": bend.get("max", float("nan")), "bend_mean": bend.get("mean", float("nan")),
+                    "bend_stiffened": bend.get("stiffened", float("nan")),
+                    "min_eigenvalue": r.min_eigenvalue, "stable": r.stable,
+                    "sag": check.relative_sag if check else float("nan"),
+                    "static_sag": check.static_sag if check else float("nan"),
+                    "message": r.message})
+        return rows
+
 
 def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("element",),
               simulate: bool = True, steps: int = 200, dt: float = 1e-3, jobs: int | None = None,

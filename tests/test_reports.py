@@ -1,5 +1,7 @@
 """Reports: a tiny study's markdown carries the Results' numbers; the PDF is a real multi-page PDF with
 the tables and figures; `sagfree optimize` on a .hair file gives parameters `sagfree simulate` confirms."""
+import csv
+
 import numpy as np
 import pypdf
 import pytest
@@ -47,6 +49,10 @@ def test_markdown_tables_carry_the_numbers_of_the_results(tiny):
     for row, case in zip(convergence, study.cases):
         assert row[:4] == [case.scene, case.mode, case.solver, str(len(case.results))]
         assert row[9] == cell(max(r.residual_inf for r in case.results))
+    with open(files.markdown.parent / "results.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [(row["solver"], row["status"], float(row["objective"])) for row in table] == \
+        [(c.solver, r.status, r.objective) for c, _, r in expected]
     checks = table_rows(text, "scene | mode | solver | still")
     asc = [row for row in checks if row[2] == "asc"]
     assert len(asc) == 4 and all(row[3] in ("1/1", "2/2") for row in asc)  # optimized strands stand still
