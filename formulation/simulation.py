@@ -146,7 +146,8 @@ class Simulation:
     def __repr__(self) -> str:
         steps = self.newton_iterations
         return (f"Simulation(steps={len(self.times) - 1}, dt={self.dt:g} s, converged={self.converged}, "
-                f"sag={self.sag:.3g} m, relative_sag={self.relative_sag:.3g}, newton_per_step={steps.mean() if steps.size else 0:.2f}, time={self.time:.3g} s)")
+                f"sag={self.sag:.3g} m, relative_sag={self.relative_sag:.3g}, "
+                f"newton_per_step={steps.mean() if steps.size else 0:.2f}, time={self.time:.3g} s)")
 
 
 class IncrementalPotential:
