@@ -10,6 +10,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 
 @dataclass
 class Heading:
@@ -48,7 +50,7 @@ class Document:
 
 def cell(value) -> str:
     """A table cell as text: floats in compact scientific form, everything else as str."""
-    if isinstance(value, bool):
+    if isinstance(value, (bool, np.bool_)):
         return "yes" if value else "no"
     if isinstance(value, float):
         if value != value:

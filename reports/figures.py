@@ -131,7 +131,7 @@ def sag_comparison(study: Study, path: Path) -> Path:
     ax.axhline(1e-6, color="gray", linestyle=":", linewidth=0.8)
     ax.set_xticks(np.arange(len(cases)), [f"{c.scene}\n{c.label}" for c in cases], rotation=60, ha="right",
                   fontsize=6)
-    ax.set(ylabel="sag / L", title="sag per strand (green: solver converged; dotted: 1e-6)")
+    ax.set(ylabel="sag / L", title="sag per strand (green: converged)")
     return _save(fig, path)
 
 
