@@ -76,11 +76,13 @@ class Study:
 def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("element",),
               simulate: bool = True, steps: int = 200, dt: float = 1e-3, jobs: int | None = None,
               progress: bool = False, limits: dict[str, int] | None = None,
-              check_limits: dict[str, int] | None = None, solver_options: dict | None = None) -> Study:
+              check_limits: dict[str, int] | None = None, solver_options: dict | None = None,
+              scheduler=None) -> Study:
     """Solve every scene with every solver in every mode (``stiffness`` of the Problem) and simulate.
 
     limits / check_limits: solver -> largest number of strands solved / simulated per scene (default:
-    all). solver_options: solver -> keyword arguments of the solver.
+    all). solver_options: solver -> keyword arguments of the solver. jobs, scheduler: as for
+    ``sagfree.optimize``.
     """
     for name in solvers:
         solver_function(name)  # unknown or unavailable solvers fail before any work
@@ -97,14 +99,14 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
                 batch = strands[: limits.get(solver, len(strands))]
                 start = time.perf_counter()
                 results = optimize(batch, solver=solver, jobs=jobs, progress=progress, stiffness=mode,
-                                   solver_options=solver_options.get(solver))
+                                   solver_options=solver_options.get(solver), scheduler=scheduler)
                 wall = time.perf_counter() - start
                 checks, check_wall = [], 0.0
                 if simulate:
                     count = min(len(batch), check_limits.get(solver, len(batch)))
                     start = time.perf_counter()
                     checks = simulate_strands(batch[:count], [r.p for r in results[:count]], steps, dt,
-                                              jobs=jobs, progress=progress, stiffness=mode)
+                                              jobs=jobs, progress=progress, scheduler=scheduler, stiffness=mode)
                     check_wall = time.perf_counter() - start
                 study.cases.append(Case(scene, solver, mode, results, checks, wall, check_wall))
     return study

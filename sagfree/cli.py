@@ -69,7 +69,8 @@ def _optimize(args) -> int:
     strands = load(args.input, args.units)
     options = _problem_options(args)
     start = time.perf_counter()
-    results = optimize(strands, solver=args.solver, jobs=args.jobs, progress=not args.quiet, **options)
+    results = optimize(strands, solver=args.solver, jobs=args.jobs, progress=not args.quiet,
+                       scheduler=args.scheduler, **options)
     wall = time.perf_counter() - start
     save_parameters(args.output, strands, results, args.solver, options)
     counts = {}
@@ -93,7 +94,7 @@ def _simulate(args) -> int:
     params = load_parameters(args.params)
     params.check_matches(strands, args.input)
     checks = simulate_strands(strands, params.p, args.steps, args.dt, args.damping, jobs=args.jobs,
-                              progress=not args.quiet, **params.problem_options)
+                              progress=not args.quiet, scheduler=args.scheduler, **params.problem_options)
     header = (f"{'strand':>6} {'vertices':>8} {'optimized':>10} {'sag (m)':>10} {'sag / L':>9} "
               f"{'static / L':>10} {'newton':>6}  verdict")
     print(f"{len(strands)} strands, {args.steps} implicit-Euler steps of {args.dt:g} s from rest, "
@@ -125,6 +126,9 @@ def _simulation_arguments(command) -> None:
 
 def _batch_arguments(command) -> None:
     command.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    command.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                         help="run on a Dask cluster: a scheduler address (tcp://host:8786) or 'local' for a "
+                         "LocalCluster of --jobs workers (needs dask.distributed)")
     command.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -138,7 +142,7 @@ def _report(args) -> int:
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     study = run_study(scenes, solvers, modes, steps=args.steps, dt=args.dt, jobs=args.jobs,
-                      progress=not args.quiet)
+                      progress=not args.quiet, scheduler=args.scheduler)
     files = write_report(study, args.out, "sagfree report", pdf=not args.no_pdf)
     for case in study.cases:
         counts = ", ".join(f"{s} {n}" for s in ("converged", "infeasible", "max_iterations", "failed")
@@ -231,7 +235,7 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.run(args)
-    except (FileNotFoundError, ValueError) as exc:  # unreadable or inconsistent input
+    except (FileNotFoundError, ValueError, ImportError) as exc:  # unreadable input, a missing optional package
         print(f"sagfree {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

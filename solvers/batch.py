@@ -50,16 +50,17 @@ def _run_chunk(function, chunk, arguments) -> list:
 
 
 def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int | None = None,
-                progress: bool = False, desc: str = "", on_crash=None) -> list:
+                progress: bool = False, desc: str = "", on_crash=None, scheduler=None) -> list:
     """[function(*item, *arguments) for item in items] on ``jobs`` worker processes, in order.
 
     ``function`` must never raise for a bad strand (it returns a failed record instead);
     ``on_crash(message)`` makes the record of each item of a chunk whose worker process died.
-    jobs: None = all cores, 1 = in this process. Chunks are contiguous, so results do not depend on
-    the number of jobs.
+    jobs: None = all cores, 1 = in this process. scheduler: None (local processes), "local" (a Dask
+    LocalCluster of ``jobs`` workers), a Dask scheduler address or Client (cluster module). Chunks are
+    contiguous, so results do not depend on the number of jobs nor on where they ran.
     """
     jobs = (os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
-    if jobs == 1 or len(items) <= 1:
+    if scheduler is None and (jobs == 1 or len(items) <= 1):
         iterator = items
         if progress:
             from tqdm import tqdm
@@ -68,15 +69,29 @@ def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int |
     # small chunks keep all workers busy to the end; several per worker amortize the transfer
     size = max(1, min(64, len(items) // (4 * jobs)))
     chunks = [items[i: i + size] for i in range(0, len(items), size)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(items), desc=f"{desc} x{jobs}" if scheduler is None else f"{desc} (dask)",
+                   unit="strand")
+    try:
+        if scheduler is not None:
+            from .cluster import run_chunks
+            results = run_chunks(_run_chunk, function, chunks, arguments, scheduler, jobs, bar, on_crash)
+        else:
+            results = _run_on_processes(function, chunks, arguments, jobs, bar, on_crash)
+    finally:
+        if bar is not None:
+            bar.close()
+    return [r for chunk_results in results for r in chunk_results]
+
+
+def _run_on_processes(function, chunks, arguments, jobs, bar, on_crash) -> list[list]:
     context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
                                           else "spawn")
     results: list[list] = [None] * len(chunks)  # type: ignore[list-item]
     with ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=context) as pool:
         futures = {pool.submit(_run_chunk, function, c, arguments): k for k, c in enumerate(chunks)}
-        bar = None
-        if progress:
-            from tqdm import tqdm
-            bar = tqdm(total=len(items), desc=f"{desc} x{jobs}", unit="strand")
         for future in as_completed(futures):
             k = futures[future]
             try:
@@ -85,23 +100,23 @@ def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int |
                 results[k] = [on_crash(f"worker process failed: {exc}") for _ in chunks[k]]
             if bar is not None:
                 bar.update(len(chunks[k]))
-        if bar is not None:
-            bar.close()
-    return [r for chunk_results in results for r in chunk_results]
+    return results
 
 
 def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_options: dict | None = None,
-             progress: bool = False, **problem_options) -> list[Result]:
+             progress: bool = False, scheduler=None, **problem_options) -> list[Result]:
     """Solve every strand; returns one Result per strand, in order.
 
-    jobs: worker processes (None = all cores, 1 = in this process). solver_options: keyword
-    arguments of the solver function (e.g. ``tol``). problem_options: keyword arguments of Problem
-    (gravity, curvature, optimize, stiffness, couple_twist, bounds, weights).
+    jobs: worker processes (None = all cores, 1 = in this process; with "local", the LocalCluster's
+    workers). scheduler: None, "local" or a Dask scheduler address / Client (cluster module).
+    solver_options: keyword arguments of the solver function (e.g. ``tol``). problem_options:
+    keyword arguments of Problem (gravity, curvature, optimize, stiffness, couple_twist, bounds,
+    weights).
     """
     strands = list(strands)
     solver_function(solver)  # an unknown solver is a usage error, raised before any work
     return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
-                       jobs, progress, solver, partial(failed_result, solver))
+                       jobs, progress, solver, partial(failed_result, solver), scheduler)
 
 
 def _solve(strand, solver, solver_options, problem_options) -> Result:
@@ -122,14 +137,20 @@ def _check(strand, p, problem_options, steps, dt, damping) -> SagCheck:
 
 
 def simulate_strands(strands, parameters, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
-                     jobs: int | None = None, progress: bool = False, **problem_options) -> list[SagCheck]:
+                     jobs: int | None = None, progress: bool = False, scheduler=None,
+                     **problem_options) -> list[SagCheck]:
     """Forward-check every strand's parameters (formulation.simulation.sag_check) on all cores.
 
-    parameters: one p per strand (None or NaN: not checked); problem_options as for ``optimize``.
+    parameters: one p per strand (None or NaN: not checked); jobs, scheduler and problem_options as
+    for ``optimize``.
     """
     strands, parameters = list(strands), list(parameters)
     if len(strands) != len(parameters):
         raise ValueError(f"{len(strands)} strands but {len(parameters)} parameter vectors")
     nan = float("nan")
     return map_strands(_check, list(zip(strands, parameters)), (problem_options, steps, dt, damping), jobs,
-                       progress, "simulate", lambda message: SagCheck(nan, nan, nan, False, 0.0, 0.0, message))
+                       progress, "simulate", partial(_unchecked, nan), scheduler)
+
+
+def _unchecked(nan: float, message: str) -> SagCheck:
+    return SagCheck(nan, nan, nan, False, 0.0, 0.0, message)
