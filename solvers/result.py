@@ -114,6 +114,15 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
                   time, eigenvalue, stable, list(history or []), problem.physical(p))
 
 
+def bare_result(problem: Problem, p: np.ndarray, solver: str, status: str, message: str,
+                iterations: dict[str, int], time: float, history: list[float] | None = None) -> Result:
+    """A Result with p, status, message, iterations, time and history only (NaN / empty elsewhere),
+    for solves whose Result is an intermediate (make_result measures everything)."""
+    nan = float("nan")
+    return Result(solver, np.asarray(p, dtype=float).copy(), status, message, dict(iterations), nan, nan, nan,
+                  {}, {}, time, nan, False, list(history or []))
+
+
 def iteration_summary(results: list[Result]) -> str:
     """Mean count of each kind of iteration over ``results``, e.g. 'sqp=9 admm=25850' (reports)."""
     keys = list(dict.fromkeys(k for result in results for k in result.iterations))

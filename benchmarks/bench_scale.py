@@ -1,0 +1,125 @@
+"""Scaling study: total time against the number of strands, time per strand against strand size, peak
+memory, and the ratio to Ipopt and OSQP-SQP measured in the same run.
+
+    python benchmarks/bench_scale.py [--strands 100,1000,10000] [--vertices 25,50,100,200,400]
+                                     [--size-strands 40] [--baseline-strands 3] [--jobs N]
+
+1. groom(N, 100 vertices) for each N, all cores: wall time, per-strand time, peak resident memory of
+   the whole process tree (this process and its workers, sampled every 50 ms from /proc), statuses;
+2. groom(size_strands, n) for each n, all cores: wall time per strand and per vertex;
+3. the first ``baseline_strands`` strands of groom(., n) for the two smallest n, one process each:
+   asc, ipopt and osqp per strand, and the baselines' time over ours (in this run).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+import sagfree
+
+
+class PeakMemory:
+    """Peak of the summed resident set size (MB) of this process and all its descendants."""
+
+    def __init__(self, interval: float = 0.05):
+        self.interval, self.peak, self._stop = interval, 0.0, threading.Event()
+
+    @staticmethod
+    def _tree_rss() -> float:
+        pids, total, frontier = set(), 0.0, [os.getpid()]
+        while frontier:
+            pid = frontier.pop()
+            if pid in pids:
+                continue
+            pids.add(pid)
+            try:
+                for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                    if line.startswith("VmRSS:"):
+                        total += float(line.split()[1]) / 1024.0
+                children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+                frontier.extend(int(c) for c in children)
+            except OSError:
+                continue
+        return total
+
+    def _run(self):
+        while not self._stop.is_set():
+            self.peak = max(self.peak, self._tree_rss())
+            self._stop.wait(self.interval)
+
+    def __enter__(self):
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self.peak = max(self.peak, self._tree_rss())
+
+
+def strands_table(counts, jobs: int) -> None:
+    print(f"1. groom(N, 100 vertices), {jobs} jobs")
+    print(f"   {'strands':>8} {'wall s':>8} {'ms/strand':>10} {'strands/s':>10} {'peak MB':>8}  statuses")
+    for n in counts:
+        groom = sagfree.scenes.groom(n, 100, seed=0)
+        with PeakMemory() as memory:
+            start = time.perf_counter()
+            results = sagfree.optimize(groom, jobs=jobs)
+            wall = time.perf_counter() - start
+        statuses = {s: sum(r.status == s for r in results) for s in ("converged", "max_iterations", "failed",
+                                                                      "infeasible")}
+        print(f"   {n:8d} {wall:8.2f} {1e3 * np.mean([r.time for r in results]):10.1f} {n / wall:10.1f} "
+              f"{memory.peak:8.0f}  {', '.join(f'{k} {v}' for k, v in statuses.items() if v)}", flush=True)
+
+
+def sizes_table(sizes, count: int, jobs: int) -> None:
+    print(f"\n2. groom({count}, n vertices), {jobs} jobs")
+    print(f"   {'vertices':>8} {'wall s':>8} {'ms/strand':>10} {'us/vertex':>10}  statuses")
+    for n in sizes:
+        start = time.perf_counter()
+        results = sagfree.optimize(sagfree.scenes.groom(count, n, seed=0), jobs=jobs)
+        wall = time.perf_counter() - start
+        per_strand = np.mean([r.time for r in results])
+        converged = sum(r.status == "converged" for r in results)
+        print(f"   {n:8d} {wall:8.2f} {1e3 * per_strand:10.1f} "
+              f"{1e6 * per_strand / n:10.1f}  converged {converged}/{count}", flush=True)
+
+
+def baselines_table(sizes, count: int) -> None:
+    print(f"\n3. baselines on the first {count} strands, one process; ratio = time / time of asc")
+    print(f"   {'vertices':>8} {'solver':>8} {'ms/strand':>10} {'ratio':>8}  statuses")
+    for n in sizes:
+        strands = sagfree.scenes.groom(count, n, seed=0)
+        reference = None
+        for solver in ("asc", "ipopt", "osqp"):
+            results = sagfree.optimize(strands, solver=solver, jobs=1)
+            t = np.mean([r.time for r in results])
+            reference = reference or t
+            statuses = {s: sum(r.status == s for r in results) for s in ("converged", "max_iterations", "failed")}
+            print(f"   {n:8d} {solver:>8} {1e3 * t:10.1f} {t / reference:8.1f}  "
+                  f"{', '.join(f'{k} {v}' for k, v in statuses.items() if v)}", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--strands", default="100,1000,10000")
+    parser.add_argument("--vertices", default="25,50,100,200,400")
+    parser.add_argument("--size-strands", type=int, default=40)
+    parser.add_argument("--baseline-strands", type=int, default=3)
+    parser.add_argument("--jobs", type=int, default=os.cpu_count())
+    args = parser.parse_args()
+    sagfree.optimize(sagfree.scenes.groom(2, 25, seed=0), jobs=1)  # compile / load the model first
+    strands_table([int(x) for x in args.strands.split(",")], args.jobs)
+    sizes = [int(x) for x in args.vertices.split(",")]
+    sizes_table(sizes, args.size_strands, args.jobs)
+    baselines_table(sizes[:2], args.baseline_strands)
+
+
+if __name__ == "__main__":
+    main()
