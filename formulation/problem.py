@@ -20,7 +20,7 @@ from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
 from .parameters import BLOCKS, ParameterLayout
 from .stencils import edge_stencil, vertex_stencil
-from .strand import Strand
+from .strand import InvalidStrand, Strand
 
 #: Half bandwidth of every DOF Hessian: a vertex stencil spans 11 consecutive DOFs (dofs module).
 HALF_BANDWIDTH = 10
@@ -37,6 +37,9 @@ class Problem:
 
     def __init__(self, strand: Strand, gravity=(0.0, 0.0, -9.81), curvature="4d", optimize=BLOCKS,
                  stiffness="element", couple_twist=True, bounds=None, weights=None, energies=TERMS):
+        if not isinstance(strand, Strand):
+            raise ValueError(strand.message if isinstance(strand, InvalidStrand) else
+                             f"expected a sagfree.Strand, got {type(strand).__name__}")
         check_variant(curvature)
         self.gravity = np.array(gravity, dtype=float).reshape(-1)
         if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):

@@ -77,6 +77,29 @@ class Strand:
                 f"E={self.youngs_modulus:.3g} Pa, G={self.shear_modulus:.3g} Pa, root={self.root!r})")
 
 
+class InvalidStrand:
+    """A strand of an input file that failed validation, kept in its slot so that a batch can report
+    it (status ``failed``, this message) and go on with the others. ``Problem`` refuses it."""
+
+    def __init__(self, points, message: str):
+        self.message = message
+        try:
+            self.points = np.array(points, dtype=float)
+        except (TypeError, ValueError):
+            self.points = np.zeros((0, 3))
+        self.n_vertices = len(self.points)
+
+    @property
+    def length(self) -> float:
+        """Polyline length (m) where computable, else NaN."""
+        if self.points.ndim != 2 or self.points.shape[1] != 3 or len(self.points) < 2:
+            return float("nan")
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+    def __repr__(self) -> str:
+        return f"InvalidStrand(n={self.n_vertices}, {self.message!r})"
+
+
 def _positive(name: str, value) -> float:
     v = float(value)
     if not np.isfinite(v) or v <= 0:

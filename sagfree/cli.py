@@ -65,14 +65,22 @@ def _optimize(args) -> int:
     from sagfree.scenes import load
     from sagfree.scenes.npz import save_parameters
     from sagfree.solvers.batch import optimize
+    from sagfree.solvers.checkpoint import Checkpoint
 
-    strands = load(args.input, args.units)
+    strands = load(args.input, args.units, keep_invalid=True)
     options = _problem_options(args)
+    checkpoint = Checkpoint(args.output, strands, args.solver, options, args.resume)
+    todo = [k for k in range(len(strands)) if k not in checkpoint.done]
+    if checkpoint.done:
+        print(f"resuming: {len(checkpoint.done)} of {len(strands)} strands were solved before")
     start = time.perf_counter()
-    results = optimize(strands, solver=args.solver, jobs=args.jobs, progress=not args.quiet,
-                       scheduler=args.scheduler, **options)
+    optimize([strands[k] for k in todo], solver=args.solver, jobs=args.jobs, progress=not args.quiet,
+             scheduler=args.scheduler, on_chunk=lambda first, res: checkpoint.save(todo[first: first + len(res)], res),
+             **options)
     wall = time.perf_counter() - start
+    results = [checkpoint.done[k] for k in range(len(strands))]
     save_parameters(args.output, strands, results, args.solver, options)
+    checkpoint.remove()
     counts = {}
     for r in results:
         counts[r.status] = counts.get(r.status, 0) + 1
@@ -90,7 +98,7 @@ def _simulate(args) -> int:
     from sagfree.scenes.npz import load_parameters
     from sagfree.solvers.batch import simulate_strands
 
-    strands = load(args.input, args.units)
+    strands = load(args.input, args.units, keep_invalid=True)
     params = load_parameters(args.params)
     params.check_matches(strands, args.input)
     checks = simulate_strands(strands, params.p, args.steps, args.dt, args.damping, jobs=args.jobs,
@@ -194,6 +202,8 @@ def parser() -> argparse.ArgumentParser:
     opt.add_argument("--stiffness", default="element", choices=("element", "strand", "fixed"),
                      help="stiffness per element, one per strand, or fixed (default element)")
     opt.add_argument("--curvature", default="4d", choices=VARIANTS, help="curvature variant (default 4d)")
+    opt.add_argument("--resume", action="store_true",
+                     help="continue an interrupted run from OUT.partial/ instead of starting over")
     _batch_arguments(opt)
     opt.set_defaults(run=_optimize)
 
@@ -238,6 +248,9 @@ def main(argv=None) -> int:
     except (FileNotFoundError, ValueError, ImportError) as exc:  # unreadable input, a missing optional package
         print(f"sagfree {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into a reader that stopped (| head): not an error of ours
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":

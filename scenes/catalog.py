@@ -36,9 +36,10 @@ FORMATS = {
 }
 
 
-def load(source, units: str | None = None, **material) -> list[Strand]:
+def load(source, units: str | None = None, keep_invalid: bool = False, **material) -> list[Strand]:
     """Strands from a file or a built-in scene name; ``units`` (m, cm, mm; None: the format's
-    default) and material keywords for the hair formats."""
+    default) and material keywords for the hair formats; ``keep_invalid``: a strand that fails
+    validation becomes an InvalidStrand in its slot instead of an error (file_io)."""
     path = Path(source)
     suffix = path.suffix.lower()
     if suffix in FORMATS:
@@ -46,8 +47,9 @@ def load(source, units: str | None = None, **material) -> list[Strand]:
             if units not in (None, "m") or material:
                 raise ValueError(f"{path}: a .npz strands file is in SI units with its own material; "
                                  "units and material options do not apply")
-            return load_strands(path)
-        return FORMATS[suffix][0](path, **({"units": units} if units else {}), **material)
+            return load_strands(path, keep_invalid)
+        return FORMATS[suffix][0](path, **({"units": units} if units else {}), keep_invalid=keep_invalid,
+                                  **material)
     if str(source) in BUILTIN:
         return BUILTIN[str(source)]()
     raise ValueError(f"{source}: not a strands file ({', '.join(FORMATS)}) nor a built-in scene "

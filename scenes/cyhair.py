@@ -51,8 +51,9 @@ POINT_ARRAYS = (("points", 1, 3), ("thickness", 2, 1), ("transparency", 3, 1), (
 SEGMENTS, POINTS, THICKNESS = 1, 2, 4
 
 
-def load_hair(path, units: str = "cm", **material) -> list[Strand]:
-    """Strands (m) from a cyHair file whose lengths are in ``units``; material keywords override."""
+def load_hair(path, units: str = "cm", keep_invalid: bool = False, **material) -> list[Strand]:
+    """Strands (m) from a cyHair file whose lengths are in ``units``; material keywords override;
+    keep_invalid: see file_io."""
     scale = metres_per_unit(units)
     check_material(material)
     with open(path, "rb") as f:
@@ -105,7 +106,7 @@ def load_hair(path, units: str = "cm", **material) -> list[Strand]:
         else:
             radius = 0.5 * scale * default if default > 0 else MATERIAL["radius"]
         strands.append(make_strand(arrays["points"][rows].astype(float) * scale, f"{path}: strand {k}",
-                                   **{**MATERIAL, "radius": radius, **material}))
+                                   keep_invalid, **{**MATERIAL, "radius": radius, **material}))
     return strands
 
 

@@ -1,5 +1,9 @@
 """What the strand file readers and writers (cyhair, usc_data, obj_polylines, npz) share.
 
+Invalid strands: a strand whose geometry or material Strand rejects is an error naming the file and
+strand, or, with ``keep_invalid=True``, an InvalidStrand in its slot (a batch reports it as failed
+and goes on). A file that cannot be parsed at all is always an error.
+
 Length units: a file stores lengths in one of ``UNITS`` (metres per file unit); readers multiply by
 it to get metres, writers divide by it. Material: a file gives at most a radius, the rest comes
 from ``synthetic.MATERIAL`` unless the caller overrides it with keyword arguments.
@@ -10,7 +14,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from sagfree.formulation.strand import Strand
+from sagfree.formulation.strand import InvalidStrand, Strand
 
 from .synthetic import MATERIAL
 
@@ -32,11 +36,14 @@ def check_material(material: dict) -> dict:
     return material
 
 
-def make_strand(points, where: str, **material) -> Strand:
-    """Strand(points, **material), its ValueError prefixed with ``where`` (file and strand)."""
+def make_strand(points, where: str, keep_invalid: bool = False, **material) -> Strand | InvalidStrand:
+    """Strand(points, **material), its ValueError prefixed with ``where`` (file and strand); with
+    ``keep_invalid``, an InvalidStrand carrying that message instead of the error."""
     try:
         return Strand(points, **material)
     except ValueError as exc:
+        if keep_invalid:
+            return InvalidStrand(points, f"{where}: {exc}")
         raise ValueError(f"{where}: {exc}") from None
 
 

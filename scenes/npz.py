@@ -32,7 +32,7 @@ import numpy as np
 
 from sagfree.formulation.strand import Strand
 
-from .file_io import write_atomically
+from .file_io import make_strand, write_atomically
 
 MATERIAL_FIELDS = ("radius", "youngs_modulus", "shear_modulus", "density")
 STRANDS_VERSION = 1
@@ -76,8 +76,9 @@ def save_strands(path, strands: list[Strand]) -> None:
     write_atomically(path, lambda f: np.savez(f, **arrays))
 
 
-def load_strands(path) -> list[Strand]:
-    """Strands of a strands ``.npz`` file; errors name the strand and what is wrong with it."""
+def load_strands(path, keep_invalid: bool = False) -> list[Strand]:
+    """Strands of a strands ``.npz`` file; errors name the strand and what is wrong with it (with
+    ``keep_invalid``, a strand's error becomes an InvalidStrand in its slot; file_io)."""
     path = Path(path)
     arrays = _open(path, "strands", ("points", "offsets"))
     points = np.asarray(arrays["points"], dtype=float)
@@ -103,10 +104,8 @@ def load_strands(path) -> list[Strand]:
         options = {name: (str(v[k]) if name == "root" else float(v[k])) for name, v in per_strand.items()}
         if theta is not None:
             options["theta"] = theta[theta_offsets[k]: theta_offsets[k + 1]]
-        try:
-            strands.append(Strand(points[offsets[k]: offsets[k + 1]], **options))
-        except ValueError as exc:
-            raise ValueError(f"{path}: strand {k}: {exc}") from None
+        strands.append(make_strand(points[offsets[k]: offsets[k + 1]], f"{path}: strand {k}", keep_invalid,
+                                   **options))
     return strands
 
 
@@ -139,8 +138,8 @@ class ParameterFile:
         if len(strands) != len(self.p):
             raise ValueError(f"the parameters are for {len(self.p)} strands, {source} has {len(strands)}")
         for k, strand in enumerate(strands):
-            if strand.n_vertices != self.vertex_counts[k] or not np.isclose(strand.length, self.lengths[k],
-                                                                             rtol=1e-6):
+            if strand.n_vertices != self.vertex_counts[k] or not np.isclose(
+                    strand.length, self.lengths[k], rtol=1e-6, equal_nan=True):
                 raise ValueError(
                     f"strand {k} of {source} has {strand.n_vertices} vertices and length {strand.length:.6g} m, "
                     f"the parameters were computed for {self.vertex_counts[k]} vertices and "
@@ -152,7 +151,7 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
     a JSON summary (same name, ``.json``) with each strand's status, residuals, stiffening, time."""
     strands, results = list(strands), list(results)
     counts = np.array([s.n_vertices for s in strands], dtype=np.int64)
-    rows = {"edge": counts - 1, "vertex": counts - 2}
+    rows = {"edge": np.maximum(counts - 1, 0), "vertex": np.maximum(counts - 2, 0)}
     arrays = {
         "format": np.array(f"sagfree-parameters-{PARAMETERS_VERSION}"),
         "p": np.concatenate([r.p for r in results]) if results else np.zeros(0),

@@ -34,8 +34,9 @@ from .file_io import check_material, make_strand, metres_per_unit, write_bytes
 from .synthetic import MATERIAL
 
 
-def load_obj(path, units: str = "m", **material) -> list[Strand]:
-    """Strands (m) from the line elements of an OBJ file in ``units``; material keywords override."""
+def load_obj(path, units: str = "m", keep_invalid: bool = False, **material) -> list[Strand]:
+    """Strands (m) from the line elements of an OBJ file in ``units``; material keywords override;
+    keep_invalid: see file_io."""
     scale = metres_per_unit(units)
     material = {**MATERIAL, **check_material(material)}
     vertices, elements = [], []  # elements: [line number, 0-based vertex indices, joinable]
@@ -63,7 +64,7 @@ def load_obj(path, units: str = "m", **material) -> list[Strand]:
         if out:
             raise ValueError(f"{path}:{no}: vertex index {out[0] + 1} out of range: the file has "
                              f"{len(vertices)} vertices")
-        strands.append(make_strand(points[indices], f"{path}:{no}: strand {k}", **material))
+        strands.append(make_strand(points[indices], f"{path}:{no}: strand {k}", keep_invalid, **material))
     return strands
 
 

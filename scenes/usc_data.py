@@ -25,14 +25,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from sagfree.formulation.strand import Strand
+from sagfree.formulation.strand import InvalidStrand, Strand
 
 from .file_io import check_material, make_strand, metres_per_unit, write_bytes
 from .synthetic import MATERIAL
 
 
-def load_data(path, units: str = "m", *, skip_short: bool = False, **material) -> list[Strand]:
-    """Strands (m) from a .data file whose lengths are in ``units``; material keywords override."""
+def load_data(path, units: str = "m", *, skip_short: bool = False, keep_invalid: bool = False,
+              **material) -> list[Strand]:
+    """Strands (m) from a .data file whose lengths are in ``units``; material keywords override;
+    keep_invalid: see file_io (short strands too, unless skip_short drops them)."""
     scale = metres_per_unit(units)
     material = {**MATERIAL, **check_material(material)}
     with open(path, "rb") as f:
@@ -60,9 +62,13 @@ def load_data(path, units: str = "m", *, skip_short: bool = False, **material) -
         if n < 3:
             if skip_short:
                 continue
-            raise ValueError(f"{where}: a strand needs at least 3 vertices, got {n} (a scalp point "
-                             f"without hair? load with skip_short=True to drop such strands)")
-        strands.append(make_strand(points.astype(float) * scale, where, **material))
+            message = (f"{where}: a strand needs at least 3 vertices, got {n} (a scalp point without hair? "
+                       "load with skip_short=True to drop such strands)")
+            if not keep_invalid:
+                raise ValueError(message)
+            strands.append(InvalidStrand(points * scale, message))
+            continue
+        strands.append(make_strand(points.astype(float) * scale, where, keep_invalid, **material))
     if pos != len(data):
         raise ValueError(f"{path}: {len(data) - pos} bytes of trailing data after strand "
                          f"{n_strands - 1}, the last of the {n_strands} announced")

@@ -16,7 +16,7 @@ import multiprocessing
 import os
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from functools import partial
 
 import numpy as np
@@ -27,6 +27,9 @@ from sagfree.formulation.strand import Strand
 
 from .registry import solver_function
 from .result import Result, failed_result
+
+#: Seconds a strand may take before a batch on worker processes declares its chunk hung.
+STRAND_TIMEOUT = 600.0
 
 
 def solve_strand(strand: Strand, solver: str = "asc", solver_options: dict | None = None,
@@ -50,73 +53,99 @@ def _run_chunk(function, chunk, arguments) -> list:
 
 
 def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int | None = None,
-                progress: bool = False, desc: str = "", on_crash=None, scheduler=None) -> list:
+                progress: bool = False, desc: str = "", on_crash=None, scheduler=None, on_chunk=None,
+                strand_timeout: float = STRAND_TIMEOUT) -> list:
     """[function(*item, *arguments) for item in items] on ``jobs`` worker processes, in order.
 
     ``function`` must never raise for a bad strand (it returns a failed record instead);
-    ``on_crash(message)`` makes the record of each item of a chunk whose worker process died.
+    ``on_crash(message)`` makes the record of each item of a chunk whose worker died or hung.
     jobs: None = all cores, 1 = in this process. scheduler: None (local processes), "local" (a Dask
-    LocalCluster of ``jobs`` workers), a Dask scheduler address or Client (cluster module). Chunks are
-    contiguous, so results do not depend on the number of jobs nor on where they ran.
+    LocalCluster of ``jobs`` workers), a Dask scheduler address or Client (cluster module). The items
+    are cut into contiguous chunks, so results do not depend on the number of jobs nor on where they
+    ran; ``on_chunk(first, results)`` is called in this process as each chunk finishes (checkpoints).
+    strand_timeout: on worker processes, if no chunk finishes within strand_timeout x chunk size
+    seconds, the running chunks are declared hung: their strands get on_crash records and the
+    workers are killed (in this process, jobs = 1, there is no watchdog).
     """
     jobs = (os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
-    if scheduler is None and (jobs == 1 or len(items) <= 1):
-        iterator = items
-        if progress:
-            from tqdm import tqdm
-            iterator = tqdm(items, desc=desc, unit="strand")
-        return [function(*item, *arguments) for item in iterator]
     # small chunks keep all workers busy to the end; several per worker amortize the transfer
     size = max(1, min(64, len(items) // (4 * jobs)))
     chunks = [items[i: i + size] for i in range(0, len(items), size)]
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(items), desc=f"{desc} x{jobs}" if scheduler is None else f"{desc} (dask)",
-                   unit="strand")
+        where = "dask" if scheduler is not None else f"x{jobs}"
+        bar = tqdm(total=len(items), desc=f"{desc} ({where})", unit="strand")
+
+    def finished(k: int, results: list) -> None:
+        if on_chunk is not None:
+            on_chunk(k * size, results)
+        if bar is not None:
+            bar.update(len(results))
+
     try:
         if scheduler is not None:
             from .cluster import run_chunks
-            results = run_chunks(_run_chunk, function, chunks, arguments, scheduler, jobs, bar, on_crash)
+            results = run_chunks(_run_chunk, function, chunks, arguments, scheduler, jobs, finished, on_crash,
+                                 strand_timeout * size)
+        elif jobs == 1 or len(chunks) <= 1:
+            results = []
+            for k, chunk in enumerate(chunks):
+                results.append(_run_chunk(function, chunk, arguments))
+                finished(k, results[-1])
         else:
-            results = _run_on_processes(function, chunks, arguments, jobs, bar, on_crash)
+            results = _run_on_processes(function, chunks, arguments, jobs, finished, on_crash,
+                                        strand_timeout * size)
     finally:
         if bar is not None:
             bar.close()
     return [r for chunk_results in results for r in chunk_results]
 
 
-def _run_on_processes(function, chunks, arguments, jobs, bar, on_crash) -> list[list]:
+def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, timeout) -> list[list]:
     context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
                                           else "spawn")
     results: list[list] = [None] * len(chunks)  # type: ignore[list-item]
-    with ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=context) as pool:
-        futures = {pool.submit(_run_chunk, function, c, arguments): k for k, c in enumerate(chunks)}
-        for future in as_completed(futures):
-            k = futures[future]
-            try:
-                results[k] = future.result()
-            except Exception as exc:  # noqa: BLE001 - a worker died: fail its strands only
-                results[k] = [on_crash(f"worker process failed: {exc}") for _ in chunks[k]]
-            if bar is not None:
-                bar.update(len(chunks[k]))
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=context)
+    try:
+        pending = {pool.submit(_run_chunk, function, c, arguments): k for k, c in enumerate(chunks)}
+        while pending:
+            done, _ = wait(pending, timeout=timeout, return_when=FIRST_COMPLETED)
+            if not done:  # nothing finished in time: the running chunks hang
+                for future, k in pending.items():
+                    results[k] = [on_crash(f"timed out: no chunk finished within {timeout:.0f} s")
+                                  for _ in chunks[k]]
+                    finished(k, results[k])
+                for process in list(getattr(pool, "_processes", {}).values()):
+                    process.kill()
+                break
+            for future in done:
+                k = pending.pop(future)
+                try:
+                    results[k] = future.result()
+                except Exception as exc:  # noqa: BLE001 - a worker died: fail its strands only
+                    results[k] = [on_crash(f"worker process failed: {exc}") for _ in chunks[k]]
+                finished(k, results[k])
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
     return results
 
 
 def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_options: dict | None = None,
-             progress: bool = False, scheduler=None, **problem_options) -> list[Result]:
+             progress: bool = False, scheduler=None, on_chunk=None, **problem_options) -> list[Result]:
     """Solve every strand; returns one Result per strand, in order.
 
     jobs: worker processes (None = all cores, 1 = in this process; with "local", the LocalCluster's
     workers). scheduler: None, "local" or a Dask scheduler address / Client (cluster module).
-    solver_options: keyword arguments of the solver function (e.g. ``tol``). problem_options:
+    solver_options: keyword arguments of the solver function (e.g. ``tol``). on_chunk(first,
+    results): called as each chunk of strands finishes (checkpoints; map_strands). problem_options:
     keyword arguments of Problem (gravity, curvature, optimize, stiffness, couple_twist, bounds,
     weights).
     """
     strands = list(strands)
     solver_function(solver)  # an unknown solver is a usage error, raised before any work
     return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
-                       jobs, progress, solver, partial(failed_result, solver), scheduler)
+                       jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk)
 
 
 def _solve(strand, solver, solver_options, problem_options) -> Result:

@@ -44,21 +44,34 @@ def client_for(scheduler, workers: int):
             yield client
 
 
-def run_chunks(run_chunk, function, chunks: list, arguments: tuple, scheduler, workers: int, bar, on_crash) -> list:
-    """[run_chunk(function, chunk, arguments) for chunk in chunks] on the cluster, in order."""
+def run_chunks(run_chunk, function, chunks: list, arguments: tuple, scheduler, workers: int, finished,
+               on_crash, timeout: float) -> list:
+    """[run_chunk(function, chunk, arguments) for chunk in chunks] on the cluster, in order;
+    ``finished(k, results)`` as chunk k comes back. If no chunk finishes within ``timeout`` seconds,
+    the remaining ones are cancelled and their strands get on_crash records."""
     distributed = _distributed()
     results: list = [None] * len(chunks)
     with client_for(scheduler, workers) as client:
-        futures = {client.submit(run_chunk, function, chunk, arguments, pure=False): k
+        pending = {client.submit(run_chunk, function, chunk, arguments, pure=False): k
                    for k, chunk in enumerate(chunks)}
-        for future in distributed.as_completed(futures):
-            k = futures[future]
-            if future.status == "finished":
-                results[k] = future.result()
-            else:
-                error = future.exception() if future.status == "error" else future.status
-                results[k] = [on_crash(f"cluster task failed: {error!r}") for _ in chunks[k]]
-            future.release()
-            if bar is not None:
-                bar.update(len(chunks[k]))
+        while pending:
+            try:
+                done = distributed.wait(list(pending), timeout=timeout, return_when="FIRST_COMPLETED").done
+            except TimeoutError:
+                done = set()
+            if not done:
+                for future, k in pending.items():
+                    future.cancel()
+                    results[k] = [on_crash(f"timed out: no chunk finished within {timeout:.0f} s") for _ in chunks[k]]
+                    finished(k, results[k])
+                break
+            for future in done:
+                k = pending.pop(future)
+                if future.status == "finished":
+                    results[k] = future.result()
+                else:
+                    error = future.exception() if future.status == "error" else future.status
+                    results[k] = [on_crash(f"cluster task failed: {error!r}") for _ in chunks[k]]
+                future.release()
+                finished(k, results[k])
     return results
