@@ -132,20 +132,22 @@ def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, tim
 
 
 def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_options: dict | None = None,
-             progress: bool = False, scheduler=None, on_chunk=None, **problem_options) -> list[Result]:
+             progress: bool = False, scheduler=None, on_chunk=None, strand_timeout: float = STRAND_TIMEOUT,
+             **problem_options) -> list[Result]:
     """Solve every strand; returns one Result per strand, in order.
 
     jobs: worker processes (None = all cores, 1 = in this process; with "local", the LocalCluster's
     workers). scheduler: None, "local" or a Dask scheduler address / Client (cluster module).
     solver_options: keyword arguments of the solver function (e.g. ``tol``). on_chunk(first,
-    results): called as each chunk of strands finishes (checkpoints; map_strands). problem_options:
+    results): called as each chunk of strands finishes (checkpoints; map_strands). strand_timeout:
+    seconds a strand may take on worker processes before its chunk counts as hung. problem_options:
     keyword arguments of Problem (gravity, curvature, optimize, stiffness, couple_twist, bounds,
     weights).
     """
     strands = list(strands)
     solver_function(solver)  # an unknown solver is a usage error, raised before any work
     return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
-                       jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk)
+                       jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk, strand_timeout)
 
 
 def _solve(strand, solver, solver_options, problem_options) -> Result:
