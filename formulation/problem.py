@@ -74,12 +74,16 @@ class Problem:
                                       strand.shear_modulus, optimize, stiffness, couple_twist, bounds,
                                       weights)
 
-        masses = 0.5 * strand.density * np.pi * r**2 * (np.r_[l0, 0.0] + np.r_[0.0, l0])
+        with np.errstate(all="ignore"):
+            masses = 0.5 * strand.density * np.pi * np.float64(r) ** 2 * (np.r_[l0, 0.0] + np.r_[0.0, l0])
+            self.row_scale = dofs.row_scales(masses, l0, strand.density, np.float64(r), self.gravity)
+            moduli = np.array([strand.youngs_modulus, strand.shear_modulus])
+            _check_scales(masses, self.row_scale, moduli * np.pi * np.float64(r) ** 4,
+                          moduli * np.pi * np.float64(r) ** 2)
         self.masses = masses
         self.gravity_forces = dofs.gravity_forces(masses, self.gravity)
         self.free = dofs.free_mask(n, strand.root)
         self.first_free = int(np.argmax(self.free))  # the prescribed DOFs are a prefix of q
-        self.row_scale = dofs.row_scales(masses, l0, strand.density, r, self.gravity)
         self._jacobian_pattern = _JacobianPattern(self)
         self._band_scatter = None  # built on the first hessian_band call
 
@@ -229,6 +233,20 @@ class Problem:
                                       matvec=lambda x: scipy.linalg.cho_solve_banded((factor, True), x))
         largest = spla.eigsh(inverse, k=1, which="LA", tol=1e-10, return_eigenvectors=False)[0]
         return float(1.0 / largest)
+
+
+def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
+    """Refuse a strand whose material and size make the model's scales zero or overflow in double
+    precision (masses, the force scales D of c, the bending and stretch stiffness), which would turn
+    c into NaN: such numbers are almost surely in the wrong units."""
+    for name, values in (("vertex masses", masses), ("force scales", row_scale),
+                         ("bending and twisting stiffness (E, G) pi r^4", bend_stiffness),
+                         ("stretch stiffness (E, G) pi r^2", stretch_stiffness)):
+        values = np.asarray(values, dtype=float)
+        if not np.all(np.isfinite(values) & (values > 1e-290)) or np.any(values > 1e290):
+            raise ValueError(f"strand {name} out of double-precision range ({np.min(values):.3g} to "
+                             f"{np.max(values):.3g}): check the units of radius (m), moduli (Pa), density "
+                             "(kg/m^3) and coordinates (m)")
 
 
 def _band_scatter(stencil_indices: list[np.ndarray], size: int):

@@ -84,6 +84,9 @@ def load_hair(path, units: str = "cm", keep_invalid: bool = False, **material) -
         counts = take("segments", "<u2", n_strands, 1, lambda row: row)[:, 0].astype(np.int64) + 1
         source = "the segments array"
     else:
+        if n_strands > (len(data) - pos) // 12:  # checked before allocating per-strand counts
+            raise ValueError(f"{path}: corrupted header: {n_strands} strands of at least one 12-byte point "
+                             f"cannot fit in a file of {len(data)} bytes")
         counts = np.full(n_strands, int(h["segments"]) + 1, dtype=np.int64)
         source = f"the default of {int(h['segments'])} segments per strand"
     if counts.sum() != n_points:
