@@ -120,8 +120,14 @@ def _validated_points(points) -> np.ndarray:
     bad = np.flatnonzero(~np.all(np.isfinite(x), axis=1))
     if bad.size:
         raise ValueError(f"vertex {bad[0]} has a non-finite coordinate {x[bad[0]].tolist()}")
-    e = np.diff(x, axis=0)
-    lengths = np.linalg.norm(e, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = np.diff(x, axis=0)
+        lengths = np.linalg.norm(e, axis=1)
+    huge = np.flatnonzero(~np.isfinite(lengths))
+    if huge.size:
+        j = huge[0]
+        raise ValueError(f"edge {j} (vertices {j} and {j + 1}) has a length beyond double precision: "
+                         f"coordinates {x[j].tolist()} are far too large (points are in metres)")
     scale = max(float(np.abs(x).max()), float(lengths.max()))
     short = np.flatnonzero(lengths <= 1e-12 * scale)
     if short.size:

@@ -89,7 +89,8 @@ def test_a_poisoned_strand_never_stops_the_others(tmp_path, capsys):
 def test_an_interrupted_run_resumes_to_the_same_result(tmp_path):
     sagfree.save(tmp_path / "g.npz", sagfree.scenes.groom(48, 60, seed=3))
     command = [sys.executable, "-m", "sagfree.cli", "optimize", str(tmp_path / "g.npz"), "--jobs", "1", "--quiet"]
-    proc = subprocess.Popen([*command, "-o", str(tmp_path / "p.npz")], stdout=subprocess.DEVNULL)
+    # cwd: from a clone's root, "python -m" would import the source tree instead of the installed package
+    proc = subprocess.Popen([*command, "-o", str(tmp_path / "p.npz")], stdout=subprocess.DEVNULL, cwd=tmp_path)
     partial = tmp_path / "p.npz.partial"
     deadline = time.time() + 120
     while not list(partial.glob("chunk-*.pkl")) and time.time() < deadline and proc.poll() is None:
@@ -99,10 +100,11 @@ def test_an_interrupted_run_resumes_to_the_same_result(tmp_path):
     assert not (tmp_path / "p.npz").exists(), "the run finished before it could be interrupted"
     written = len(list(partial.glob("chunk-*.pkl")))
     assert 1 <= written < 4
-    resumed = subprocess.run([*command, "-o", str(tmp_path / "p.npz"), "--resume"], capture_output=True, text=True)
+    resumed = subprocess.run([*command, "-o", str(tmp_path / "p.npz"), "--resume"], capture_output=True, text=True,
+                             cwd=tmp_path)
     assert resumed.returncode == 0 and f"resuming: {12 * written} of 48 strands" in resumed.stdout
     assert not partial.exists()
-    subprocess.run([*command, "-o", str(tmp_path / "q.npz")], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run([*command, "-o", str(tmp_path / "q.npz")], check=True, stdout=subprocess.DEVNULL, cwd=tmp_path)
     a, b = np.load(tmp_path / "p.npz"), np.load(tmp_path / "q.npz")
     for key in a.files:
         np.testing.assert_array_equal(a[key], b[key])
