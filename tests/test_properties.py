@@ -299,26 +299,13 @@ def build_problem_or_value_error(strand):
     return problem, problem.residual(problem.p0)
 
 
-@settings(**SETTINGS, max_examples=20)
+@settings(**SETTINGS, max_examples=30)
 @given(points=point_arrays(max_vertices=10, bad_shapes=False), material=materials())
 @example(points=[[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.02, 0.01, 0.0]], material={"radius": 1e200})
-def test_problem_from_random_strand_never_crashes(points, material):
-    """Strand builds or raises ValueError; a built Strand gives a Problem or a ValueError."""
-    try:
-        strand = Strand(points, **material)
-    except ValueError as exc:
-        check_value_error(exc)
-        return
-    problem, residual = build_problem_or_value_error(strand)
-    if problem is not None:
-        assert isinstance(residual, np.ndarray)
-
-
-@settings(**SETTINGS, max_examples=20)
-@given(points=point_arrays(max_vertices=10, bad_shapes=False), material=materials())
 @example(points=[[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.02, 0.01, 0.0]], material={"density": 5e-324})
-def test_problem_residual_finite_for_random_strand(points, material):
-    """When Strand builds, Problem(strand).residual(p0) is finite (or Problem raises ValueError)."""
+def test_problem_from_random_strand_has_a_finite_residual_or_refuses(points, material):
+    """Strand builds or raises ValueError; a built Strand gives a Problem whose residual at p0 is
+    finite, or a ValueError (radius 1e200 once raised OverflowError, density 5e-324 gave NaN)."""
     try:
         strand = Strand(points, **material)
     except ValueError as exc:
