@@ -14,7 +14,7 @@ from sagfree.formulation.strand import Strand
 
 from .cyhair import load_hair, save_hair
 from .groom import default_groom
-from .npz import load_strands, save_strands
+from .npz import load_strands, save_parameters, save_strands
 from .obj_polylines import load_obj, save_obj
 from .synthetic import curly, flipped, helix, horizontal, wavy
 from .usc_data import load_data, save_data
@@ -56,11 +56,28 @@ def load(source, units: str | None = None, keep_invalid: bool = False, **materia
                      f"({', '.join(BUILTIN)})")
 
 
-def save(path, strands: list[Strand], units: str | None = None) -> None:
-    """Write strands to a file whose format is picked by extension (``units`` for the hair formats)."""
-    suffix = Path(path).suffix.lower()
+def save(path, strands: list[Strand], results=None, units: str | None = None, solver: str | None = None,
+         problem_options: dict | None = None) -> Path | None:
+    """Write strands to a file whose format is picked by extension (``units`` for the hair formats).
+
+    With ``results`` (one Result per strand, from ``sagfree.optimize``), their parameters also go to
+    ``<path stem>.params.npz`` (and its JSON summary; scenes.npz), which ``sagfree simulate`` reads;
+    ``solver`` (default: the Results' solver) and ``problem_options`` are recorded there. Returns the
+    parameters file's path, or None.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(f"{path}: cannot write strands as '{suffix}'; use one of {', '.join(FORMATS)}")
     if suffix == ".npz" and units not in (None, "m"):
         raise ValueError(f"{path}: a .npz strands file is always in metres")
     FORMATS[suffix][1](path, strands, **({"units": units} if units and suffix != ".npz" else {}))
+    if results is None:
+        return None
+    results = list(results)
+    if len(results) != len(strands):
+        raise ValueError(f"{len(strands)} strands but {len(results)} results")
+    params = path.with_name(path.stem + ".params.npz")
+    save_parameters(params, strands, results, solver or (results[0].solver if results else "unknown"),
+                    dict(problem_options or {}))
+    return params

@@ -13,8 +13,9 @@ Parameters file (written by ``sagfree optimize``):
   ``twist_modulus`` (Pa) per interior vertex, rows vertex_offsets[k]:vertex_offsets[k+1];
   NaN rows for a strand that failed;
 - per strand: ``p`` (the normalized parameters of the Problem layout, one after another, with
-  ``p_offsets``), ``status``, ``message``, ``vertex_counts``, ``lengths`` (m; a reader checks that it
-  is given the same strands);
+  ``p_offsets``), ``status``, ``message``, ``vertex_counts``, ``lengths`` (m) and the material
+  (``radius``, ``youngs_modulus``, ``shear_modulus``, ``density``): a reader checks that it is given
+  the same strands, since OBJ and .data files store no material;
 - ``solver`` and ``problem_options`` (the Problem options as JSON, so that a reader rebuilds the same
   Problem).
 Next to it, ``<name>.json`` summarizes each strand's status, message, |c|_inf, residual force,
@@ -119,9 +120,9 @@ class ParameterFile:
     """Contents of a parameters ``.npz`` file.
 
     p: one normalized parameter vector per strand (empty when the strand failed before its Problem
-    was built); status, message per strand; solver; problem_options; vertex_counts and lengths (m)
-    of the strands they were computed for; physical: name -> one array per strand (PHYSICAL; NaN
-    where the strand has no parameters).
+    was built); status, message per strand; solver; problem_options; vertex_counts, lengths (m) and
+    material (radius, moduli, density per strand) of the strands they were computed for; physical:
+    name -> one array per strand (PHYSICAL; NaN where the strand has no parameters).
     """
 
     p: list[np.ndarray]
@@ -132,6 +133,7 @@ class ParameterFile:
     vertex_counts: np.ndarray
     lengths: np.ndarray
     physical: dict[str, list[np.ndarray]]
+    material: dict[str, np.ndarray]
 
     def check_matches(self, strands, source: str = "the strands") -> None:
         """Raise ValueError unless ``strands`` are those the parameters were computed for."""
@@ -144,6 +146,11 @@ class ParameterFile:
                     f"strand {k} of {source} has {strand.n_vertices} vertices and length {strand.length:.6g} m, "
                     f"the parameters were computed for {self.vertex_counts[k]} vertices and "
                     f"{self.lengths[k]:.6g} m (same file and --units as for optimize?)")
+            for name, values in self.material.items():
+                if not np.isclose(getattr(strand, name, np.nan), values[k], rtol=1e-6, equal_nan=True):
+                    raise ValueError(
+                        f"strand {k} of {source} has {name} {getattr(strand, name, np.nan):.6g}, the parameters "
+                        f"were computed for {values[k]:.6g} (a file format that stores no {name}? use .npz)")
 
 
 def save_parameters(path, strands, results, solver: str, problem_options: dict) -> None:
@@ -162,6 +169,7 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
         "problem_options": np.array(json.dumps(problem_options, sort_keys=True)),
         "vertex_counts": counts,
         "lengths": np.array([s.length for s in strands]),
+        **{f: np.array([getattr(s, f, np.nan) for s in strands], dtype=float) for f in MATERIAL_FIELDS},
         "edge_offsets": np.r_[0, np.cumsum(rows["edge"])].astype(np.int64),
         "vertex_offsets": np.r_[0, np.cumsum(rows["vertex"])].astype(np.int64),
     }
@@ -203,8 +211,11 @@ def load_parameters(path) -> ParameterFile:
         values = np.asarray(arrays[name], dtype=float)
         rows = _offsets(path, arrays, f"{kind}_offsets", len(values))
         physical[name] = [values[rows[k]: rows[k + 1]] for k in range(count)]
+    material = {f: np.asarray(arrays[f], dtype=float) for f in MATERIAL_FIELDS if f in arrays}
+    if any(values.shape != (count,) for values in material.values()):
+        raise ValueError(f"{path}: material arrays must have one entry per strand ({count})")
     return ParameterFile([p[offsets[k]: offsets[k + 1]] for k in range(count)], status, message,
-                         str(arrays.get("solver", "unknown")), options, counts, lengths, physical)
+                         str(arrays.get("solver", "unknown")), options, counts, lengths, physical, material)
 
 
 def _finite_or_none(value):

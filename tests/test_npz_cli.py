@@ -53,6 +53,22 @@ def test_parameters_round_trip_keeps_failed_strands(tmp_path):
         back.check_matches([sagfree.scenes.horizontal(n=13), *strands[1:]])
 
 
+def test_save_with_results_writes_the_parameters_simulate_reads(tmp_path, capsys):
+    strands = sagfree.scenes.groom(2, 12, seed=8)
+    results = sagfree.optimize(strands, jobs=1, stiffness="strand")
+    params = sagfree.save(tmp_path / "groom.hair", strands, results, problem_options={"stiffness": "strand"})
+    assert params == tmp_path / "groom.params.npz" and (tmp_path / "groom.params.json").exists()
+    back = load_parameters(params)
+    assert back.solver == "asc" and back.problem_options == {"stiffness": "strand"}
+    assert main(["simulate", str(tmp_path / "groom.hair"), "--params", str(params), "--steps", "20", "--jobs", "1",
+                 "--quiet"]) == 0
+    assert "2/2 strands stay" in capsys.readouterr().out
+    # an OBJ file stores no radius: its strands get the default one, and simulate says so
+    sagfree.save(tmp_path / "groom.obj", strands)
+    assert main(["simulate", str(tmp_path / "groom.obj"), "--params", str(params), "--quiet"]) == 2
+    assert "has radius 5e-05, the parameters were computed for" in capsys.readouterr().err
+
+
 def test_bad_files_give_errors_that_name_file_and_strand(tmp_path):
     damaged = tmp_path / "damaged.npz"
     damaged.write_bytes(b"PK\x03\x04 not really a zip")
