@@ -70,7 +70,8 @@ def main() -> None:
           f"({1e3 * instrumented / n:.1f} ms with the timers)")
     print(f"   {'part':54} {'ms/strand':>10} {'share':>6}")
     for _, _, label in PARTS:
-        print(f"   {label:54} {1e3 * totals.get(label, 0.0) / n:10.2f} {100 * totals.get(label, 0.0) / instrumented:5.0f}%")
+        spent = totals.get(label, 0.0)
+        print(f"   {label:54} {1e3 * spent / n:10.2f} {100 * spent / instrumented:5.0f}%")
 
     start = time.perf_counter()
     sagfree.optimize(strands, jobs=args.jobs)

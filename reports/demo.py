@@ -20,6 +20,7 @@ from pathlib import Path
 from sagfree.formulation.verification import FD_TOLERANCE, HAND_TOLERANCE, verify
 from sagfree.scenes import DEFAULT_GROOM, default_groom, groom
 from sagfree.solvers.registry import SOLVERS
+from sagfree.solvers.result import status_counts, status_summary
 
 from . import experiments
 from .document import Heading, Paragraph, Table
@@ -78,7 +79,7 @@ def run_demo(out_dir: str | os.PathLike = "sagfree-demo", progress: bool = True,
         Paragraph(f"{count} groom strands per size (`groom({count}, n, seed=0)`), one process per batch; "
                   "drawn in the time figure above."),
         Table(["vertices", "solver", "statuses", "ms/strand", "ms per 100 vertices"],
-              [[n, c.solver, ", ".join(f"{k} {v}" for k, v in _counts(c.results).items()),
+              [[n, c.solver, status_summary(c.results),
                 1e3 * _mean_time(c.results), 1e5 * _mean_time(c.results) / n]
                for c in sweep.cases for n in [sweep.scenes[c.scene][0].n_vertices]]),
         *experiments.document_blocks(),
@@ -92,16 +93,9 @@ def run_demo(out_dir: str | os.PathLike = "sagfree-demo", progress: bool = True,
     files = write_report(study, out_dir, "sagfree demo report", intro, extra, sizes=sweep)
     return DemoSummary(
         files.markdown, files.pdf, len(strands), sum(s.n_vertices for s in strands),
-        {c.solver: c.wall for c in study.cases}, {c.solver: _counts(c.results) for c in study.cases},
+        {c.solver: c.wall for c in study.cases}, {c.solver: status_counts(c.results) for c in study.cases},
         {c.solver: (sum(not ch.sags(STILL) for ch in c.checks), len(c.checks)) for c in study.cases},
         passed, len(rows), time.perf_counter() - start)
-
-
-def _counts(results) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for r in results:
-        counts[r.status] = counts.get(r.status, 0) + 1
-    return counts
 
 
 def _mean_time(results) -> float:

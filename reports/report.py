@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.image import imread
 
-from sagfree.solvers.result import STATUSES, iteration_summary
+from sagfree.solvers.result import iteration_summary, status_summary
 
 from .document import Document, Figure, Heading, Paragraph, Table, to_markdown, write_pdf
 from .environment import versions
@@ -42,10 +42,6 @@ class ReportFiles:
     figures: dict[str, Path]
 
 
-def _statuses(results) -> str:
-    return ", ".join(f"{s} {n}" for s in STATUSES if (n := sum(r.status == s for r in results)))
-
-
 def _nanmax(values) -> float:
     values = [v for v in values if np.isfinite(v)]
     return float(max(values)) if values else float("nan")
@@ -55,8 +51,8 @@ def convergence_rows(study: Study) -> list[list]:
     rows = []
     for c in study.cases:
         res = c.results
-        rows.append([c.scene, c.mode, c.solver, len(res), _statuses(res), 1e3 * float(np.mean([r.time for r in res])),
-                     c.wall, iteration_summary(res),
+        rows.append([c.scene, c.mode, c.solver, len(res), status_summary(res),
+                     1e3 * float(np.mean([r.time for r in res])), c.wall, iteration_summary(res),
                      float(np.mean([r.iterations.get("factorizations", 0) for r in res])),
                      _nanmax(r.residual_inf for r in res), _nanmax(r.max_force for r in res),
                      float(np.nanmean([r.objective for r in res]))])
@@ -106,22 +102,18 @@ def comparison_rows(study: Study) -> list[list]:
         ratio = np.mean([r.time for r, _ in pairs]) / np.mean([a.time for _, a in pairs])
         gaps = [abs(r.objective / a.objective - 1) for r, a in pairs
                 if r.status == a.status == "converged" and a.objective > 0]
-        rows.append([c.scene, c.mode, c.solver, len(pairs), _statuses([r for r, _ in pairs]),
-                     _statuses([a for _, a in pairs]), float(ratio), max(gaps) if gaps else "-"])
+        rows.append([c.scene, c.mode, c.solver, len(pairs), status_summary([r for r, _ in pairs]),
+                     status_summary([a for _, a in pairs]), float(ratio), max(gaps) if gaps else "-"])
     return rows
+
+
+STRAND_COLUMNS = ("scene", "strand", "mode", "solver", "status", "time_s", "residual_inf", "max_force_N",
+                  "objective", "bend_max", "sag", "static_sag", "min_eigenvalue")
 
 
 def strand_rows(study: Study) -> list[list]:
-    rows = []
-    for c in study.cases:
-        for k, r in enumerate(c.results):
-            bend = r.stiffening.get("bend_stiffness", r.stiffening.get("strand_stiffness", {}))
-            check = c.checks[k] if k < len(c.checks) else None
-            rows.append([c.scene, k, c.mode, c.solver, r.status, 1e3 * r.time, r.residual_inf, r.max_force,
-                         r.objective, bend.get("max", float("nan")),
-                         check.relative_sag if check else float("nan"),
-                         check.static_sag if check else float("nan"), r.min_eigenvalue])
-    return rows
+    """The per-strand table: STRAND_COLUMNS of Study.rows (time in ms)."""
+    return [[1e3 * row[k] if k == "time_s" else row[k] for k in STRAND_COLUMNS] for row in study.rows()]
 
 
 def _setup(study: Study) -> str:

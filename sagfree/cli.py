@@ -66,6 +66,7 @@ def _optimize(args) -> int:
     from sagfree.scenes.npz import save_parameters
     from sagfree.solvers.batch import optimize
     from sagfree.solvers.checkpoint import Checkpoint
+    from sagfree.solvers.result import status_summary
 
     strands = load(args.input, args.units, keep_invalid=True)
     options = _problem_options(args)
@@ -81,16 +82,12 @@ def _optimize(args) -> int:
     results = [checkpoint.done[k] for k in range(len(strands))]
     save_parameters(args.output, strands, results, args.solver, options)
     checkpoint.remove()
-    counts = {}
-    for r in results:
-        counts[r.status] = counts.get(r.status, 0) + 1
-    print(f"{len(results)} strands with {args.solver} in {wall:.2f} s: "
-          + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    print(f"{len(results)} strands with {args.solver} in {wall:.2f} s: {status_summary(results)}")
     for k, r in enumerate(results):
         if r.status != "converged":
             print(f"  strand {k}: {r.status}: {r.message}")
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.json')}")
-    return 0 if counts.get("converged", 0) == len(results) else 1
+    return 0 if all(r.status == "converged" for r in results) else 1
 
 
 def _simulate(args) -> int:
@@ -144,6 +141,7 @@ def _report(args) -> int:
     from sagfree.reports.report import write_report
     from sagfree.reports.study import run_study
     from sagfree.scenes import load
+    from sagfree.solvers.result import status_summary
 
     scenes = {name: load(name, args.units)[: args.max_strands] for name in
               (n.strip() for n in args.scenes.split(",")) if name}
@@ -153,9 +151,7 @@ def _report(args) -> int:
                       progress=not args.quiet, scheduler=args.scheduler)
     files = write_report(study, args.out, "sagfree report", pdf=not args.no_pdf)
     for case in study.cases:
-        counts = ", ".join(f"{s} {n}" for s in ("converged", "infeasible", "max_iterations", "failed")
-                           if (n := sum(r.status == s for r in case.results)))
-        print(f"{case.scene:12} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {counts}")
+        print(f"{case.scene:12} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {status_summary(case.results)}")
     print(f"wrote {files.markdown}" + (f" and {files.pdf}" if files.pdf else ""))
     failed = any(r.status != "converged" for c in study.cases if c.solver == "asc" for r in c.results)
     return 1 if failed else 0

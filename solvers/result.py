@@ -123,6 +123,16 @@ def bare_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
                   {}, {}, time, nan, False, list(history or []))
 
 
+def status_counts(results: list[Result]) -> dict[str, int]:
+    """Strands per status, in STATUSES order, statuses with no strand left out."""
+    return {s: n for s in STATUSES if (n := sum(r.status == s for r in results))}
+
+
+def status_summary(results: list[Result]) -> str:
+    """e.g. 'converged 98, max_iterations 2' (command lines and reports)."""
+    return ", ".join(f"{s} {n}" for s, n in status_counts(results).items())
+
+
 def iteration_summary(results: list[Result]) -> str:
     """Mean count of each kind of iteration over ``results``, e.g. 'sqp=9 admm=25850' (reports)."""
     keys = list(dict.fromkeys(k for result in results for k in result.iterations))
