@@ -24,7 +24,8 @@ with H a bordered band (banded module). With g = H x - b and the free set F = {i
   vertices and the time per QP by 4% (400 vertices) and 13% (100).
 
 Preconditioners of the CG steps: ``cholesky`` (the active-set Cholesky: the exact factor of H on the free
-set, so a CG step jumps to the face minimizer; refactored whenever the free set changes), ``jacobi``
+set, so a CG step jumps to the face minimizer; refactored whenever the free set changes, from the
+first changed variable on), ``jacobi``
 (diag(H) on F) and ``none``. Iterations of each kind and factorizations are counted where they happen.
 The whole loop is compiled (numba): no Python per iteration.
 """
@@ -40,7 +41,7 @@ from .banded import BorderedBand, factor_active, gershgorin_bound, matvec, solve
 PRECONDITIONERS = {"none": 0, "jacobi": 1, "cholesky": 2}
 STATUS = {0: "converged", 1: "max_iterations", 2: "not_positive_definite", 3: "non_finite"}
 # layout of the counts array, filled inside the compiled loop
-CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS = range(5)
+CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS, FACTORED_ROWS = range(6)
 
 
 @dataclass
@@ -53,6 +54,7 @@ class QPResult:
     factorizations: int
     matvecs: int
     projected_gradient: float   # ||g^P||_2 at x
+    factored_rows: int = 0      # band rows recomputed over all factorizations (partial ones count less)
 
 
 def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -76,13 +78,14 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
     lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
     y = np.clip(np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float) / s, lower / s,
                 upper / s)
-    counts = np.zeros(5, dtype=np.int64)
+    counts = np.zeros(6, dtype=np.int64)
     status, pg = _mprgp(scaled.band, scaled.border, scaled.corner, s * np.asarray(b, dtype=float),
                         lower / s, upper / s, y, rtol, atol, max_iterations, PRECONDITIONERS[preconditioner],
                         gamma, counts)
     x = np.clip(s * y, lower, upper)  # exactly on the bound, not one rounding off it
     return QPResult(x, STATUS[status], int(counts[CG]), int(counts[EXPANSION]),
-                    int(counts[PROPORTIONING]), int(counts[FACTORIZATIONS]), int(counts[MATVECS]), pg)
+                    int(counts[PROPORTIONING]), int(counts[FACTORIZATIONS]), int(counts[MATVECS]), pg,
+                    int(counts[FACTORED_ROWS]))
 
 
 def _scaled(hessian: BorderedBand, s: np.ndarray) -> BorderedBand:
@@ -251,7 +254,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
            counts):  # pragma: no cover - compiled
     n = x.size
     nb = band.shape[1]
-    lb = np.empty_like(band)
+    lb = np.empty((nb, band.shape[0]))  # factor columns (banded.factor_active)
     lborder = np.empty_like(border)
     lcorner = np.empty_like(corner)
     g = np.empty(n)
@@ -285,15 +288,21 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
     def precondition(mask, rhs, force):
         """z = M^-1 rhs on the variables of mask (0 elsewhere)."""
         if precond == 2:
-            changed = force
-            for i in range(n):
+            start = 0 if force else n  # first variable whose freedom changed
+            for i in range(n if not force else 0):
                 if mask[i] != factored_free[i]:
-                    changed = True
+                    start = i
                     break
-            if changed:
+            border_start = start
+            for i in range(max(start, nb), n):
+                if mask[i] != factored_free[i]:
+                    border_start = 0
+            if start < n:
                 counts[FACTORIZATIONS] += 1
-                if not factor_active(band, border, corner, mask, lb, lborder, lcorner):
-                    return False
+                counts[FACTORED_ROWS] += nb - max(0, min(start, nb) - (band.shape[0] - 1))
+                if not factor_active(band, border, corner, mask, lb, lborder, lcorner, min(start, nb),
+                                     min(border_start, nb)):
+                    return False  # the QP stops (not positive definite): the factor is not reused
                 for i in range(n):
                     factored_free[i] = mask[i]
             solve_factored(lb, lborder, lcorner, rhs, z)

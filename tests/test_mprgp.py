@@ -61,17 +61,39 @@ def test_active_set_cholesky_solves_the_restricted_system(rng):
     H = random_banded_spd(rng, n, 3, border)
     bb = bordered_band(sp.csr_matrix(H), border)
     free = rng.uniform(size=n) < 0.7
-    lb, lborder, lcorner = np.empty_like(bb.band), np.empty_like(bb.border), np.empty_like(bb.corner)
-    assert factor_active(bb.band, bb.border, bb.corner, free, lb, lborder, lcorner)
+    cols, lborder, lcorner = np.empty(bb.band.shape[::-1]), np.empty_like(bb.border), np.empty_like(bb.corner)
+    assert factor_active(bb.band, bb.border, bb.corner, free, cols, lborder, lcorner, 0, 0)
     M = np.where(np.outer(free, free), H, 0.0) + np.diag(~free * 1.0)
     r = rng.standard_normal(n)
     out = np.empty(n)
-    solve_factored(lb, lborder, lcorner, r, out)
+    solve_factored(cols, lborder, lcorner, r, out)
     assert np.allclose(out, np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)
     y = np.empty(n)
     matvec(bb.band, bb.border, bb.corner, r, y)
     assert np.allclose(y, H @ r)
     assert np.allclose(bb.to_dense(), H)
+
+
+@pytest.mark.parametrize("border", [0, 1])
+def test_partial_refactorization_equals_a_full_one(rng, border):
+    """factor_active from the first changed index (rows above it kept) gives the full factor."""
+    n = 60
+    bb = bordered_band(sp.csr_matrix(random_banded_spd(rng, n, 4, border)), border)
+    nb = n - border
+    for start, border_changed in ((0, False), (17, False), (nb - 3, False), (nb, True), (25, True)):
+        free = rng.uniform(size=n) < 0.7
+        factors = [np.empty(bb.band.shape[::-1]), np.empty_like(bb.border), np.empty_like(bb.corner)]
+        assert factor_active(bb.band, bb.border, bb.corner, free, *factors, 0, 0)
+        changed = free.copy()
+        changed[start:nb] = rng.uniform(size=nb - start) < 0.5
+        if border_changed and border:
+            changed[nb:] = ~changed[nb:]
+        fresh = [np.empty(bb.band.shape[::-1]), np.empty_like(bb.border), np.empty_like(bb.corner)]
+        assert factor_active(bb.band, bb.border, bb.corner, changed, *fresh, 0, 0)
+        assert factor_active(bb.band, bb.border, bb.corner, changed, *factors, min(start, nb),
+                             0 if border_changed else min(start, nb))
+        for mine, reference in zip(factors, fresh):
+            assert np.allclose(mine, reference, rtol=1e-12, atol=1e-14)
 
 
 def test_indefinite_matrix_is_reported(rng):
