@@ -111,12 +111,13 @@ def factor_active(band, border, corner, free, cols, lborder, lcorner, start,
     """Active-set Cholesky: factor H with non-free rows/columns replaced by the identity.
 
     Right-looking banded Cholesky in column storage, cols[j, k] = L[j + k, j] (k = 0 the diagonal;
-    LAPACK's dpbtrf layout), so that every update is a contiguous axpy. Partial refactorization:
-    when the free set changed first at band index ``start``, L changes only in columns
-    j >= j0 = start - w (column j < j0 has no entry in a row >= start). Those columns are rebuilt from H, minus the updates of the w kept columns before
-    j0, and the factorization goes on from j0; ``start = 0`` is a full factorization. Then
-    Y = C_F L^-T (``lborder``, kept before column j0 too unless ``border_start`` = 0 because a border
-    variable changed) and the Cholesky factor of the Schur complement D - Y Y^T (``lcorner``).
+    LAPACK's dpbtrf layout), so that every update is a contiguous axpy.
+    Partial refactorization: when the free set changed first at band index ``start``, L changes
+    only in columns j >= j0 = start - w (column j < j0 has no entry in a row >= start). Those
+    columns are rebuilt from H, minus the updates of the w kept columns before j0, and the
+    factorization goes on from j0; ``start = 0`` is a full factorization.
+    Then Y = C_F L^-T (``lborder``, kept before column j0 too unless ``border_start`` = 0 because a
+    border variable changed) and the Cholesky factor of the Schur complement D - Y Y^T (``lcorner``).
     Returns False if a pivot is not positive (H restricted to the free set is not definite).
     """
     w1, nb = band.shape
