@@ -148,3 +148,14 @@ def test_strand_solution_spread_to_elements_keeps_the_forces(scene):
     # rest-length box (here only the root edge, at its -5% bound in the strand solution): there S
     stretch = start[element.blocks["stretch_stiffness"]]
     assert np.array_equal(np.flatnonzero(stretch != 1.0), [0]) and stretch[0] == S
+
+
+def test_a_stalled_inner_loop_hands_over_to_the_kkt_check():
+    """groom(40, 400, seed=0)[31] is feasible after 17 steps, but there the model predicts a decrease
+    just above the rounding estimate of L while L only moves by rounding: without the stall test the
+    inner loop took 584 such steps and ended at max_iterations (alm module docstring, Stall)."""
+    strand = sagfree.scenes.groom(40, 400, seed=0)[31]
+    result = sagfree.solve(sagfree.Problem(strand))
+    assert result.status == "converged", result.message
+    assert result.iterations["gauss_newton"] < 100
+    assert np.abs(sagfree.Problem(strand).residual(result.p)).max() <= 1e-8
