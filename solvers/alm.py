@@ -14,7 +14,12 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     strands) keeps p feasible.
 Start: per-element stiffness starts from the one-multiplier-per-strand solution (_strand_mode_start).
     The first inner solve is loose (omega0 = 1): with lam = 0 it lands far from feasible anyway, and
-    converging it tightly wasted ~20% of all Gauss-Newton steps.
+    converging it tightly wasted ~20% of all Gauss-Newton steps. From p0, though, the scaled
+    projected gradient is often below omega already (1e-6 on 400-vertex groom strands); an outer
+    iteration without a step then only tightens omega: updating lam <- lam + mu c and mu there
+    (what the plain method does) had grown |lam| to ~1e3 and mu to 1e4 before the first step, and
+    with such multipliers Gauss-Newton (which omits lam^T c'') crawled at alpha = 1 for 40 steps
+    on a 400-vertex strand (7 steps now).
 Scale: a rest-length entry moves c about 1e7 times more than a stiffness multiplier (the strain that
     holds gravity is ~1e-8), so gradients are compared in the scaled projected gradient
         pi(p, g) = ||P(p - g / h) - p||_inf,   h_j = w_j + ||J_{:,j}||^2,
@@ -97,7 +102,8 @@ class _Model:
 def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
               max_gauss_newton: int = 600, mu0: float = 10.0, mu_growth: float = 10.0,
               omega0: float = 1.0, preconditioner: str = "cholesky", qp_rtol: float = 1e-10,
-              start: str = "auto", p_start=None, confirm: bool = True, measure: bool = True) -> Result:
+              start: str = "auto", p_start=None, confirm: bool = True, measure: bool = True,
+              final_state: dict | None = None) -> Result:
     """Solve ``problem`` with our augmented Lagrangian solver; see the module docstring.
 
     tol: |c|_inf target (unit-free, relative to each DOF's weight). optimality_tol: projected gradient
@@ -107,7 +113,8 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     distance of the kkt module (a sparse LU, ~3 ms on a 100-vertex strand; the strand-stiffness
     start skips it). measure: fill the Result's summaries and stability (make_result); without it
     only p, status, message, iterations, time and history are set (the strand-stiffness start, whose
-    Result is discarded, saved 25% of a groom strand's time this way).
+    Result is discarded, saved 25% of a groom strand's time this way). final_state: a dict that
+    receives the final penalty ``mu`` (the strand-stiffness start hands it on).
     """
     clock = time.perf_counter()
     history: list[float] = []
@@ -119,8 +126,9 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
         p_start = problem.p0
         if start == "auto" and problem.layout.stiffness == "element" and any(
                 b in problem.blocks for b in ("stretch_stiffness", "bend_stiffness", "twist_stiffness")):
-            p_start, history = _strand_mode_start(problem, counts, tol=tol, optimality_tol=optimality_tol,
-                                                  preconditioner=preconditioner, qp_rtol=qp_rtol)
+            p_start, history, mu0 = _strand_mode_start(problem, counts, mu0, tol=tol,
+                                                       optimality_tol=optimality_tol,
+                                                       preconditioner=preconditioner, qp_rtol=qp_rtol)
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
     mu, omega = mu0, omega0
     target = optimality_tol  # inner target; tightened when the KKT distance disagrees
@@ -135,6 +143,8 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     at_lower, at_upper = p <= lower, p >= upper
 
     def finish(status, message):
+        if final_state is not None:
+            final_state["mu"] = mu
         build = make_result if measure else bare_result
         return build(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
 
@@ -143,6 +153,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
         # ---- inner: Gauss-Newton on the augmented Lagrangian ----
         recent: list[float] = []
         stalled = 0
+        steps_before = counts["gauss_newton"]
         while True:
             gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
             if scaled_projected_gradient(p, gradient, scale, lower, upper) <= omega:
@@ -194,6 +205,12 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
 
         # ---- outer: multipliers, penalty, convergence ----
         violation = float(np.abs(c).max(initial=0.0))
+        if counts["gauss_newton"] == steps_before and violation > tol and omega > target:
+            # the inner target was met without a step (the loose first one, from p0): a multiplier
+            # update there only adds mu c to lam, which grew |lam| to ~1e3 in four such rounds
+            # before the first step and made Gauss-Newton crawl; tighten the target instead
+            omega = max(target, 0.1 * omega)
+            continue
         lam = lam + mu * c
         regularizer_gradient = model.w * (p - model.p0)
         optimality = scaled_projected_gradient(p, regularizer_gradient + J.T @ lam, scale, lower, upper)
@@ -231,7 +248,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer")
 
 
-def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.ndarray, list[float]]:
+def _strand_mode_start(problem: Problem, counts: dict, mu0: float, **options) -> tuple[np.ndarray, list[float], float]:
     """A feasible start for per-element stiffness, from the solution with one stiffness multiplier S
     for the whole strand (supplement section V).
 
@@ -250,11 +267,15 @@ def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.nd
     walked away from feasibility. On groom(30, 100) that took the Gauss-Newton steps per strand from
     26 to 16.5 and the factorizations from 136 to 64; on groom(10, 400) from 44 to 32 and 412 to 168.
     (The strand solve's own multipliers, the other candidate, were as good at 100 vertices but sent
-    3 of 10 400-vertex strands to max_iterations.)
+    3 of 10 400-vertex strands to max_iterations; they were then inflated, see the module docstring,
+    Start.) The element solve also starts with the strand solve's final penalty mu: on groom(20, n,
+    seed=1) 26.2 against 35.6 Gauss-Newton steps per strand at 400 vertices, 84 against 97
+    factorizations at 100 (measured together with the no-step rule of the module docstring).
 
     The strand solve is capped at START_GAUSS_NEWTON steps (it usually needs 7-20; a rare slow one
     still gives a good start); its iterations count towards ``counts`` and its |c|_inf history is
-    returned with the start; p0 (and no history) if it failed or is infeasible."""
+    returned with the start and its final penalty; p0 (no history, mu0) if it failed or is
+    infeasible."""
     bounds, weights = dict(problem.options["bounds"] or {}), dict(problem.options["weights"] or {})
     stiffness_ix = np.concatenate([ix for b, ix in problem.blocks.items() if b.endswith("_stiffness")])
     bounds = {b: v for b, v in bounds.items() if not b.endswith("_stiffness")}
@@ -262,15 +283,16 @@ def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.nd
                                   problem.layout.upper[stiffness_ix].min())
     weights = {b: v for b, v in weights.items() if not b.endswith("_stiffness")}
     if bounds["strand_stiffness"][0] > bounds["strand_stiffness"][1]:
-        return problem.p0, []  # no common multiplier fits every element's box
+        return problem.p0, [], mu0  # no common multiplier fits every element's box
     strand_problem = problem.with_options(stiffness="strand", bounds=bounds, weights=weights)
+    state: dict = {}
     result = solve_alm(strand_problem, start="p0", max_gauss_newton=START_GAUSS_NEWTON, confirm=False,
-                       measure=False, **options)
+                       measure=False, mu0=mu0, final_state=state, **options)
     for key, value in result.iterations.items():
         counts[key] += value
     if result.status not in ("converged", "max_iterations"):
-        return problem.p0, []
-    return _spread_strand_solution(problem, strand_problem, result.p), result.history
+        return problem.p0, [], mu0
+    return _spread_strand_solution(problem, strand_problem, result.p), result.history, state["mu"]
 
 
 def _spread_strand_solution(problem: Problem, strand_problem: Problem, strand_p) -> np.ndarray:
