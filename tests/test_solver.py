@@ -1,4 +1,6 @@
 """Our solver on the reference scenes: equilibrium, bounds, KKT, infeasibility, section V, batches."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -6,6 +8,8 @@ import sagfree
 from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
 from sagfree.solvers.kkt import kkt_optimality
 from sagfree.solvers.result import STIFFENED
+
+DATA = Path(__file__).parent / "data"
 
 SCENES = {
     "horizontal": lambda: sagfree.scenes.horizontal(),
@@ -159,3 +163,23 @@ def test_a_stalled_inner_loop_hands_over_to_the_kkt_check():
     assert result.status == "converged", result.message
     assert result.iterations["gauss_newton"] < 100
     assert np.abs(sagfree.Problem(strand).residual(result.p)).max() <= 1e-8
+
+
+def test_no_multiplier_update_without_a_step():
+    """From p0 the loose first inner targets are met without a step; updating lam <- lam + mu c
+    there inflated the multipliers, and Gauss-Newton then crawled (115 steps on this strand in
+    strand mode; 7 now, alm module docstring, Start)."""
+    strand = sagfree.scenes.groom(20, 400, seed=0)[0]
+    result = sagfree.solve(sagfree.Problem(strand, stiffness="strand"))
+    assert result.status == "converged", result.message
+    assert result.iterations["gauss_newton"] <= 20
+
+
+def test_a_crawling_inner_loop_hands_over_to_the_outer_loop():
+    """Strand 2200 of groom(10000, 100, seed=0) (saved in tests/data): at mu = 1e8 Gauss-Newton
+    lowered L by ~1% per step and ran into max_gauss_newton while feasible; CRAWL steps without
+    halving the inner gradient now end the inner loop (alm module docstring, Crawl)."""
+    strand = sagfree.load(DATA / "groom10000_strand2200.npz")[0]
+    result = sagfree.solve(sagfree.Problem(strand))
+    assert result.status == "converged", result.message
+    assert result.iterations["gauss_newton"] < 100
