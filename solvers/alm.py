@@ -34,15 +34,12 @@ Converged: |c|_inf <= tol and pi of the gradient of the Lagrangian R + lam^T c (
     optimum with R 3.8e-7 too high), the target is tightened 1000-fold (counted as ``tightened``)
     and the outer loop goes on: one tightening and 7 more Gauss-Newton steps reach Ipopt's optimum
     there (0.02 s; taking constrained SQP steps instead needed 300 of them, 1.65 s).
-Stall: the rounding estimate of L can be too optimistic: on one 400-vertex groom strand the model
+Stall: the rounding estimate of L can be too optimistic: on a 400-vertex groom strand the model
     still predicted a decrease (slope 3.6e-12 against a rounding estimate of 1.7e-12) while L moved
-    by +-5e-12, and 584 accepted steps of 1.8e-9 made no progress until max_gauss_newton. STALL
-    accepted steps in a row that lower L by less than its rounding end the inner loop; on a
-    feasible p the KKT distance then decides convergence (that strand: 25 Gauss-Newton steps).
-Crawl: at large mu Gauss-Newton, which omits lam^T c'', can converge linearly at ~1% per step
-    (strand 2200 of groom(10000, 100, seed=0): feasible, pi stuck near 1.4e-4 against omega =
-    1e-6, 580 steps to max_gauss_newton). CRAWL steps without halving pi end the inner loop; the
-    outer loop's multiplier update and KKT check then finish it (36 steps in all).
+    by +-5e-12, and hundreds of accepted steps of ~1e-9 made no progress until max_gauss_newton
+    (strand 33 of groom(40, 400, seed=0): 600 steps). STALL accepted steps in a row that lower L by
+    less than its rounding end the inner loop; on a feasible p the KKT distance then decides
+    convergence (that strand: 17 Gauss-Newton steps, KKT distance 6e-12).
 Infeasible: once mu has grown 10^4-fold, the best box-constrained Gauss-Newton step for |c|^2 alone
     reduces |c| by less than 1%: p is a stationary point of the constraint violation inside the box.
     The message names the bounds that bind (the blocks and vertices whose relaxation would reduce
@@ -68,10 +65,9 @@ ARMIJO = 1e-4
 ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
 DAMPING = (1e-13, 1e-11, 1e-9)  # relative Levenberg-Marquardt damping, escalated on breakdown
 NONMONOTONE = 5  # Grippo-Lampariello-Lucidi memory of the line search
+STALL = 3  # accepted Gauss-Newton steps in a row that lower L by less than its rounding end the inner loop
 START_GAUSS_NEWTON = 40  # cap of the strand-stiffness start (_strand_mode_start)
 MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
-CRAWL = 20  # Gauss-Newton steps without halving the inner gradient that end the inner loop
-STALL = 3  # accepted Gauss-Newton steps in a row that lower L by less than its rounding end the inner loop
 
 
 class _Model:
@@ -107,8 +103,7 @@ class _Model:
 def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
               max_gauss_newton: int = 600, mu0: float = 10.0, mu_growth: float = 10.0,
               omega0: float = 1.0, preconditioner: str = "cholesky", qp_rtol: float = 1e-10,
-              start: str = "auto", p_start=None, confirm: bool = True, measure: bool = True,
-              final_state: dict | None = None) -> Result:
+              start: str = "auto", p_start=None, confirm: bool = True, measure: bool = True) -> Result:
     """Solve ``problem`` with our augmented Lagrangian solver; see the module docstring.
 
     tol: |c|_inf target (unit-free, relative to each DOF's weight). optimality_tol: projected gradient
@@ -118,8 +113,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     distance of the kkt module (a sparse LU, ~3 ms on a 100-vertex strand; the strand-stiffness
     start skips it). measure: fill the Result's summaries and stability (make_result); without it
     only p, status, message, iterations, time and history are set (the strand-stiffness start, whose
-    Result is discarded, saved 25% of a groom strand's time this way). final_state: a dict that
-    receives the final penalty ``mu`` (the strand-stiffness start hands it on).
+    Result is discarded, saved 25% of a groom strand's time this way).
     """
     clock = time.perf_counter()
     history: list[float] = []
@@ -131,9 +125,8 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
         p_start = problem.p0
         if start == "auto" and problem.layout.stiffness == "element" and any(
                 b in problem.blocks for b in ("stretch_stiffness", "bend_stiffness", "twist_stiffness")):
-            p_start, history, mu0 = _strand_mode_start(problem, counts, mu0, tol=tol,
-                                                       optimality_tol=optimality_tol,
-                                                       preconditioner=preconditioner, qp_rtol=qp_rtol)
+            p_start, history = _strand_mode_start(problem, counts, mu0=mu0, tol=tol, optimality_tol=optimality_tol,
+                                                  preconditioner=preconditioner, qp_rtol=qp_rtol)
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
     mu, omega = mu0, omega0
     target = optimality_tol  # inner target; tightened when the KKT distance disagrees
@@ -148,8 +141,6 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     at_lower, at_upper = p <= lower, p >= upper
 
     def finish(status, message):
-        if final_state is not None:
-            final_state["mu"] = mu
         build = make_result if measure else bare_result
         return build(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
 
@@ -159,16 +150,10 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
         recent: list[float] = []
         stalled = 0
         steps_before = counts["gauss_newton"]
-        best_gradient, best_step = np.inf, steps_before
         while True:
             gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
-            inner_gradient = scaled_projected_gradient(p, gradient, scale, lower, upper)
-            if inner_gradient <= omega:
+            if scaled_projected_gradient(p, gradient, scale, lower, upper) <= omega:
                 break
-            if inner_gradient <= 0.5 * best_gradient:
-                best_gradient, best_step = inner_gradient, counts["gauss_newton"]
-            elif counts["gauss_newton"] - best_step >= CRAWL:
-                break  # Gauss-Newton crawls (no halving in CRAWL steps): let the outer loop decide
             if counts["gauss_newton"] >= max_gauss_newton:
                 return finish("max_iterations", f"stopped after {max_gauss_newton} Gauss-Newton steps "
                               f"with |c|_inf = {history[-1]:.3g}; raise max_gauss_newton")
@@ -259,7 +244,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer")
 
 
-def _strand_mode_start(problem: Problem, counts: dict, mu0: float, **options) -> tuple[np.ndarray, list[float], float]:
+def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.ndarray, list[float]]:
     """A feasible start for per-element stiffness, from the solution with one stiffness multiplier S
     for the whole strand (supplement section V).
 
@@ -279,14 +264,14 @@ def _strand_mode_start(problem: Problem, counts: dict, mu0: float, **options) ->
     26 to 16.5 and the factorizations from 136 to 64; on groom(10, 400) from 44 to 32 and 412 to 168.
     (The strand solve's own multipliers, the other candidate, were as good at 100 vertices but sent
     3 of 10 400-vertex strands to max_iterations; they were then inflated, see the module docstring,
-    Start.) The element solve also starts with the strand solve's final penalty mu: on groom(20, n,
-    seed=1) 26.2 against 35.6 Gauss-Newton steps per strand at 400 vertices, 84 against 97
-    factorizations at 100 (measured together with the no-step rule of the module docstring).
+    Start.) The element solve starts again from mu0: inheriting the strand solve's final penalty
+    saved ~10% of the Gauss-Newton steps, but sent strand 27 of groom(40, 200, seed=0) crawling
+    along a flat valley at large mu (497 steps against 19; strand 2200 of groom(10000, 100, seed=0)
+    580 steps into max_gauss_newton, at ~1% per step, against 14).
 
     The strand solve is capped at START_GAUSS_NEWTON steps (it usually needs 7-20; a rare slow one
     still gives a good start); its iterations count towards ``counts`` and its |c|_inf history is
-    returned with the start and its final penalty; p0 (no history, mu0) if it failed or is
-    infeasible."""
+    returned with the start; p0 (and no history) if it failed or is infeasible."""
     bounds, weights = dict(problem.options["bounds"] or {}), dict(problem.options["weights"] or {})
     stiffness_ix = np.concatenate([ix for b, ix in problem.blocks.items() if b.endswith("_stiffness")])
     bounds = {b: v for b, v in bounds.items() if not b.endswith("_stiffness")}
@@ -294,16 +279,15 @@ def _strand_mode_start(problem: Problem, counts: dict, mu0: float, **options) ->
                                   problem.layout.upper[stiffness_ix].min())
     weights = {b: v for b, v in weights.items() if not b.endswith("_stiffness")}
     if bounds["strand_stiffness"][0] > bounds["strand_stiffness"][1]:
-        return problem.p0, [], mu0  # no common multiplier fits every element's box
+        return problem.p0, []  # no common multiplier fits every element's box
     strand_problem = problem.with_options(stiffness="strand", bounds=bounds, weights=weights)
-    state: dict = {}
     result = solve_alm(strand_problem, start="p0", max_gauss_newton=START_GAUSS_NEWTON, confirm=False,
-                       measure=False, mu0=mu0, final_state=state, **options)
+                       measure=False, **options)
     for key, value in result.iterations.items():
         counts[key] += value
     if result.status not in ("converged", "max_iterations"):
-        return problem.p0, [], mu0
-    return _spread_strand_solution(problem, strand_problem, result.p), result.history, state["mu"]
+        return problem.p0, []
+    return _spread_strand_solution(problem, strand_problem, result.p), result.history
 
 
 def _spread_strand_solution(problem: Problem, strand_problem: Problem, strand_p) -> np.ndarray:
