@@ -256,9 +256,10 @@ def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.nd
     mbar - m* = z / k_i (k_i = S gives back the strand's own rest shape, which is in the box); each
     edge keeps multiplier 1 and takes the strain S * strain through its rest length, or, where that
     rest length would leave its box, keeps the strand's edge (multiplier S, its rest length). So only
-    the root, where the boxes bind, starts stiffened; the tail starts at its specified stiffness,
-    and the start is as feasible as the strand solution (before, clipping the root edge's rest
-    length left |c|_inf = 25 on some groom strands). The element solve's multipliers start as the
+    the root, where the boxes bind, starts stiffened; the tail starts at its specified stiffness.
+    (Clipping the root edge's rest length instead left |c|_inf = 25 on some groom strands; what
+    remains, up to ~4e-2, is the 4d curvature's separate terms per frame, which the products do not
+    keep where the two frames' curvatures differ.) The element solve's multipliers start as the
     least-squares multipliers at this point (kkt.least_squares_multipliers): from lam = 0 it first
     walked away from feasibility. On groom(30, 100) that took the Gauss-Newton steps per strand from
     26 to 16.5 and the factorizations from 136 to 64; on groom(10, 400) from 44 to 32 and 412 to 168.
