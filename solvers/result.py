@@ -28,7 +28,8 @@ class Result:
 
     p: normalized parameters (Problem layout); status: converged | infeasible | max_iterations | failed;
     iterations: counts by name (per solver; ours: outer, gauss_newton, cg, expansion, proportioning,
-    factorizations); residual_inf: |c(p)|_inf (unit-free); max_force: largest residual force on a free
+    factorizations, factored_rows = band rows the (partial) refactorizations recomputed, line_search,
+    tightened); residual_inf: |c(p)|_inf (unit-free); max_force: largest residual force on a free
     vertex (N); objective: R(p); stiffening: per stiffness block {max, mean, stiffened} (ratio to the
     specified stiffness, share of elements above 1.01); rest_change: per rest block {max, mean} absolute
     change from p0 and {box} the largest change over the box half-width; time (s); min_eigenvalue of the

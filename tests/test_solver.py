@@ -154,6 +154,17 @@ def test_strand_solution_spread_to_elements_keeps_the_forces(scene):
     assert np.array_equal(np.flatnonzero(stretch != 1.0), [0]) and stretch[0] == S
 
 
+def test_refactorizations_are_partial_on_groom_strands():
+    """The active-set Cholesky refactors from the first variable whose freedom changed: over a groom
+    strand's QPs fewer band rows are recomputed than full factorizations would (strand mode: every
+    QP has the n - 1 band rows of the rest shape plus the border S)."""
+    problem = sagfree.Problem(sagfree.scenes.groom(3, 100, seed=0)[1], stiffness="strand")
+    result = sagfree.solve(problem)
+    assert result.status == "converged", result.message
+    counts = result.iterations
+    assert 0 < counts["factored_rows"] < 0.95 * counts["factorizations"] * (problem.n_parameters - 1)
+
+
 def test_a_stalled_inner_loop_hands_over_to_the_kkt_check():
     """groom(40, 400, seed=0)[33] becomes feasible early, but then the model predicts a decrease
     just above the rounding estimate of L while L only moves by rounding: without the stall test
