@@ -218,19 +218,19 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                 lam, optimality = estimate, kkt
         # a stalled inner loop on a feasible p: only the KKT distance can tell (below)
         converged = violation <= tol and (optimality <= target or stalled >= STALL)
-        measure = (f"scaled projected gradient {optimality:.2e} <= {target:g}" if optimality <= target else
-                   f"L stalled at its rounding (scaled projected gradient {optimality:.2e})")
+        evidence = (f"scaled projected gradient {optimality:.2e} <= {target:g}" if optimality <= target else
+                    f"L stalled at its rounding (scaled projected gradient {optimality:.2e})")
         if converged and confirm:
             # the scaled gradient can be small in a flat valley away from the optimum: confirm with
             # the KKT distance of the kkt module, and tighten the inner target if it disagrees
             distance = kkt_optimality(problem, p)
             converged = distance <= KKT_TOLERANCE
-            measure = f"KKT distance {distance:.2e} <= {KKT_TOLERANCE:g}"
+            evidence = f"KKT distance {distance:.2e} <= {KKT_TOLERANCE:g}"
             if not converged:
                 counts["tightened"] += 1
                 target = max(1e-3 * target, MIN_TARGET)
         if converged:
-            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and {measure} after "
+            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and {evidence} after "
                           f"{counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
         if violation > tol and violation > 0.25 * previous_violation:
             mu *= mu_growth
