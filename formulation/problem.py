@@ -18,6 +18,7 @@ from . import dofs
 from .curvature import check_variant
 from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
+from .jacobian import JacobianPattern, StrandJacobian
 from .parameters import BLOCKS, ParameterLayout
 from .stencils import edge_stencil, vertex_stencil
 from .strand import InvalidStrand, Strand
@@ -84,7 +85,16 @@ class Problem:
         self.gravity_forces = dofs.gravity_forces(masses, self.gravity)
         self.free = dofs.free_mask(n, strand.root)
         self.first_free = int(np.argmax(self.free))  # the prescribed DOFs are a prefix of q
-        self._jacobian_pattern = _JacobianPattern(self)
+        free_row = np.full(self.q_star.size, -1)
+        free_row[self.free] = np.arange(self.free.sum())
+        self._jacobian_pattern = JacobianPattern(
+            free_row, self.row_scale, int(self.free.sum()), self.layout.size,
+            [(self._edge_index, self.layout.edge_map), (self._vertex_index, self.layout.vertex_map)])
+        # the stencils' inputs at q* that do not depend on p (residual and Jacobian evaluate only there)
+        self._at_rest = (np.ascontiguousarray(self.q_star[self._edge_index]),
+                         np.ascontiguousarray(self.q_star[self._vertex_index]),
+                         np.ascontiguousarray(self._reference(self.frames)))
+        self._free_index = np.flatnonzero(self.free)
         self._band_scatter = None  # built on the first hessian_band call
 
     def with_options(self, **changes) -> "Problem":
@@ -153,11 +163,15 @@ class Problem:
         return np.column_stack([t[:-1], a1[:-1], t[1:], a1[1:], frames.reference_twist])
 
     def _stencil_inputs(self, p, q, frames):
-        p, q = self._checked(p), self._state(q)
-        reference = self._reference(self.frames if frames is None else frames)
-        edge = (q[self._edge_index], self._edge_geometry, self.layout.edge_map.evaluate(p))
-        vertex = (q[self._vertex_index], reference, self._vertex_geometry,
-                  self.layout.vertex_map.evaluate(p))
+        p = self._checked(p)
+        if q is None and frames is None:
+            edge_q, vertex_q, reference = self._at_rest
+        else:
+            q = self._state(q)
+            edge_q, vertex_q = q[self._edge_index], q[self._vertex_index]
+            reference = self._reference(self.frames if frames is None else frames)
+        edge = (edge_q, self._edge_geometry, self.layout.edge_map.evaluate(p))
+        vertex = (vertex_q, reference, self._vertex_geometry, self.layout.vertex_map.evaluate(p))
         return edge, vertex
 
     def energy(self, p, q=None, frames: Frames | None = None) -> float:
@@ -179,13 +193,18 @@ class Problem:
 
     def residual(self, p) -> np.ndarray:
         """c(p) = D^-1 S f(q*, p), unit-free, free rows in strand order."""
-        return (self.forces(p) / self.row_scale)[self.free]
+        free = self._free_index
+        return self.forces(p)[free] / self.row_scale[free]
 
     def jacobian(self, p) -> sp.csc_matrix:
         """dc/dp as a sparse (free DOFs x parameters) matrix, both axes in strand order (banded)."""
+        return self.strand_jacobian(p).tocsc()
+
+    def strand_jacobian(self, p) -> StrandJacobian:
+        """dc/dp with compiled products (jacobian module): what the solvers iterate with."""
         edge, vertex = self._stencil_inputs(p, None, None)
-        return self._jacobian_pattern.assemble(self._edge.parameter_jacobian(*edge)[0],
-                                               self._vertex.parameter_jacobian(*vertex)[0])
+        return StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
+            self._edge.parameter_jacobian(*edge)[0], self._vertex.parameter_jacobian(*vertex)[0]))
 
     def _hessian_blocks(self, p, q, frames):
         edge, vertex = self._stencil_inputs(p, q, frames)
@@ -261,36 +280,3 @@ def _band_scatter(stencil_indices: list[np.ndarray], size: int):
         targets.append((row[lower] - col[lower]) * size + col[lower])
         masks.append(lower)
     return np.concatenate(targets), masks
-
-
-class _JacobianPattern:
-    """Constant sparsity of dc/dp, with the scatter that sums stencil contributions into it."""
-
-    def __init__(self, problem: Problem):
-        layout = problem.layout
-        free_row = np.full(problem.q_star.size, -1)
-        free_row[problem.free] = np.arange(problem.free.sum())
-        parts = []
-        for dof_index, slots in ((problem._edge_index, layout.edge_map),
-                                 (problem._vertex_index, layout.vertex_map)):
-            stencils, width = dof_index.shape
-            rows = np.broadcast_to(free_row[dof_index][:, :, None], (stencils, width, slots.index.shape[1]))
-            cols = np.broadcast_to(slots.index[:, None, :], rows.shape)
-            scale = (-slots.coefficient[:, None, :] / problem.row_scale[dof_index][:, :, None])
-            keep = (rows >= 0) & (cols >= 0)
-            parts.append((keep, rows[keep], cols[keep], np.broadcast_to(scale, rows.shape)[keep]))
-        self._keep = [k for k, *_ in parts]
-        self._scale = np.concatenate([s for *_, s in parts])
-        rows = np.concatenate([r for _, r, _, _ in parts])
-        cols = np.concatenate([c for _, _, c, _ in parts])
-        self.shape = (int(problem.free.sum()), layout.size)
-        keys = cols.astype(np.int64) * self.shape[0] + rows
-        unique, self._target = np.unique(keys, return_inverse=True)
-        self._indices = (unique % self.shape[0]).astype(np.int32)
-        self._indptr = np.searchsorted(unique // self.shape[0], np.arange(self.shape[1] + 1)).astype(np.int32)
-
-    def assemble(self, edge_jacobians: np.ndarray, vertex_jacobians: np.ndarray) -> sp.csc_matrix:
-        """Sum -coef * d(grad)/d(physical) / D into the CSC values (column-major order is sorted)."""
-        entries = np.concatenate([edge_jacobians[self._keep[0]], vertex_jacobians[self._keep[1]]])
-        values = np.bincount(self._target, weights=entries * self._scale, minlength=len(self._indices))
-        return sp.csc_matrix((values, self._indices, self._indptr), shape=self.shape)

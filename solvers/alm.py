@@ -50,8 +50,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
-
+from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.problem import Problem
 
 from .banded import gram
@@ -87,7 +86,7 @@ class _Model:
         return (0.5 * float(np.sum(self.w * d * d)) + float(np.abs(lam) @ np.abs(c))
                 + 0.5 * mu * float(c @ c))
 
-    def hessian(self, J: sp.csc_matrix, mu: float, damping: float):
+    def hessian(self, J: StrandJacobian, mu: float, damping: float):
         """Bordered band of diag(w) + mu J^T J + damping * mu diag(J^T J).
 
         The stiff rest-length columns (~1e7 times the others) push the condition number of H past
@@ -130,7 +129,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
     mu, omega = mu0, omega0
     target = optimality_tol  # inner target; tightened when the KKT distance disagrees
-    c, J = problem.residual(p), problem.jacobian(p)
+    c, J = problem.residual(p), problem.strand_jacobian(p)
     scale = gradient_scale(model.w, J)
     lam = np.zeros(int(problem.free.sum()))
     if history:  # started from the strand solution: its least-squares multipliers (_strand_mode_start)
@@ -193,7 +192,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                 break  # no descent left at this accuracy: let the outer loop decide
             stalled = stalled + 1 if merit_trial > merit - rounding else 0
             p, c = trial, c_trial
-            J = problem.jacobian(p)
+            J = problem.strand_jacobian(p)
             scale = gradient_scale(model.w, J)
             history.append(float(np.abs(c).max(initial=0.0)))
             if stalled >= STALL:

@@ -23,6 +23,8 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
+from sagfree.formulation.jacobian import StrandJacobian
+
 
 @dataclass
 class BorderedBand:
@@ -224,13 +226,16 @@ def solve_factored(cols, lborder, lcorner, rhs, out):  # pragma: no cover - comp
         out[j] = s / cols[j, 0]
 
 
-def gram(J: sp.spmatrix, diagonal: np.ndarray, scale: float, border: int) -> BorderedBand:
+def gram(J: sp.spmatrix | StrandJacobian, diagonal: np.ndarray, scale: float, border: int) -> BorderedBand:
     """diag(diagonal) + scale J^T J as a bordered band, accumulated row by row from J (no sparse
     matrix product): each row of J touches only the parameters of a few neighbouring elements."""
-    J = sp.csr_matrix(J)
+    if isinstance(J, StrandJacobian):
+        indptr, indices, data = J.csr()
+    else:
+        J = sp.csr_matrix(J)
+        indptr, indices, data = J.indptr, J.indices.astype(np.int64), J.data
     n = J.shape[1]
     nb = n - border
-    indptr, indices, data = J.indptr, J.indices.astype(np.int64), J.data
     width = _row_span(indptr, indices, nb)
     band = np.zeros((width + 1, nb))
     band[0] = diagonal[:nb]

@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
 
+from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.problem import Problem
 
 #: KKT distance (kkt_optimality, in the units of p) below which every solver's status may be
@@ -26,8 +27,10 @@ def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
     return float(np.abs(np.clip(p - gradient / scale, lower, upper) - p).max(initial=0.0))
 
 
-def column_norms(J: sp.spmatrix) -> np.ndarray:
+def column_norms(J: sp.spmatrix | StrandJacobian) -> np.ndarray:
     """||J_{:,j}||^2 per parameter (summed per CSC column: J.multiply(J) cost 0.2 ms per call)."""
+    if isinstance(J, StrandJacobian):
+        return J.column_norms()
     J = sp.csc_matrix(J)
     norms = np.zeros(J.shape[1])
     filled = np.diff(J.indptr) > 0
@@ -44,6 +47,7 @@ def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -
     """lam minimizing the scaled Lagrangian gradient on the free variables,
     ||(grad R + J^T lam)_F / sqrt(h_F)||_2 (normal equations, sparse LU; a feasible p's multipliers)."""
     free = (p > lower) & (p < upper)
+    J = J.tocsc() if isinstance(J, StrandJacobian) else J
     Js = (J @ sp.diags(1.0 / np.sqrt(scale)))[:, free].tocsr()
     rs = (regularizer_gradient / np.sqrt(scale))[free]
     normal = (Js @ Js.T).tocsc() + sp.identity(J.shape[0], format="csc") * 1e-14

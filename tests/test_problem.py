@@ -1,6 +1,7 @@
 """The equilibrium problem: residual, forces, Jacobian, parameters (DESIGN sections 3, 4, 10)."""
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import sagfree
 from sagfree.formulation import dofs
@@ -71,6 +72,21 @@ def test_jacobian_matches_finite_differences_for_every_block(stiffness, couple, 
     p = perturbed_parameters(pb, rng)
     for block in pb.blocks:
         assert jacobian_error(pb, p, block) < 1e-7, block
+
+
+@pytest.mark.parametrize("stiffness", ["element", "strand"])
+def test_strand_jacobian_products_match_the_sparse_matrix(stiffness, rng):
+    """The solvers' compiled J x, J^T y, column norms and row-ordered view (jacobian module) against
+    scipy's products of the matrix Problem.jacobian returns."""
+    pb = sagfree.Problem(sagfree.scenes.curly(n=20), stiffness=stiffness)
+    p = perturbed_parameters(pb, rng)
+    J, fast = pb.jacobian(p), pb.strand_jacobian(p)
+    x, y = rng.standard_normal(J.shape[1]), rng.standard_normal(J.shape[0])
+    for fast_product, product in ((fast @ x, J @ x), (fast.T @ y, J.T @ y),
+                                  (fast.column_norms(), np.asarray(J.multiply(J).sum(axis=0)).ravel())):
+        assert np.allclose(fast_product, product, rtol=1e-12, atol=1e-12 * np.abs(product).max())
+    indptr, indices, data = fast.csr()
+    assert np.array_equal(sp.csr_matrix((data, indices, indptr), shape=J.shape).toarray(), J.toarray())
 
 
 def test_energies_are_invariant_under_rigid_rotation(rng):
