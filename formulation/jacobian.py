@@ -21,46 +21,65 @@ class JacobianPattern:
 
     Entry k of the values is sum over its contributions s of scale_s * (stencil Jacobian)_s, where
     scale = -coefficient / D (the slot's parameter scaling over the row's force scale, see
-    parameters.SlotMap and dofs.row_scales).
+    parameters.SlotMap and dofs.row_scales). The index structure depends only on the strand's size,
+    root and parameter layout, so the strands of a groom share it (_STRUCTURES): building it took
+    1.3 ms of the 2 ms a 100-vertex Problem cost.
     """
 
     def __init__(self, free_row: np.ndarray, row_scale: np.ndarray, n_rows: int, n_parameters: int,
                  stencils: list[tuple[np.ndarray, object]]):
         """free_row: row of each DOF in c (-1: prescribed). stencils: (DOF index (S, width), SlotMap)
         per stencil kind, in the order their Jacobians are passed to ``values``."""
-        rows, cols, scales, sources, offset = [], [], [], [], 0
-        for dof_index, slots in stencils:
-            count, width = dof_index.shape
-            shape = (count, width, slots.index.shape[1])
-            row = np.broadcast_to(free_row[dof_index][:, :, None], shape)
-            col = np.broadcast_to(slots.index[:, None, :], shape)
-            scale = np.broadcast_to(-slots.coefficient[:, None, :] / row_scale[dof_index][:, :, None], shape)
-            keep = (row >= 0) & (col >= 0)
-            rows.append(row[keep])
-            cols.append(col[keep])
-            scales.append(scale[keep])
-            sources.append(offset + np.flatnonzero(keep.ravel()))
-            offset += keep.size
-        rows, cols = np.concatenate(rows), np.concatenate(cols)
         self.shape = (n_rows, n_parameters)
-        self._scale, self._source = np.concatenate(scales), np.concatenate(sources)
-        keys = cols.astype(np.int64) * n_rows + rows
-        unique, target = np.unique(keys, return_inverse=True)
-        self._target = target.astype(np.int64)
-        self.indices = (unique % n_rows).astype(np.int64)
-        self.indptr = np.searchsorted(unique // n_rows, np.arange(n_parameters + 1)).astype(np.int64)
-        # the same entries in row order: csr values = csc values[csr_order]
-        order = sp.csc_matrix((np.arange(unique.size, dtype=float), self.indices, self.indptr),
-                              shape=self.shape).tocsr()
-        order.sort_indices()
-        self.csr_indptr = order.indptr.astype(np.int64)
-        self.csr_indices = order.indices.astype(np.int64)
-        self.csr_order = order.data.astype(np.int64)
+        key = (self.shape, free_row.tobytes(), *(a.tobytes() for ix, slots in stencils for a in (ix, slots.index)))
+        structure = _STRUCTURES.get(key)
+        if structure is None:
+            structure = _structure(free_row, n_rows, n_parameters, stencils)
+            if len(_STRUCTURES) >= 16:
+                _STRUCTURES.pop(next(iter(_STRUCTURES)))
+            _STRUCTURES[key] = structure
+        (self._target, self._source, self.indices, self.indptr, self.csr_indptr, self.csr_indices,
+         self.csr_order) = structure
+        self._scale = np.concatenate([
+            np.broadcast_to(-slots.coefficient[:, None, :] / row_scale[ix][:, :, None],
+                            (*ix.shape, slots.index.shape[1])).ravel()
+            for ix, slots in stencils])[self._source]
 
     def values(self, *stencil_jacobians: np.ndarray) -> np.ndarray:
         """CSC values of dc/dp from the stencil kinds' parameter Jacobians (in constructor order)."""
         entries = np.concatenate([j.ravel() for j in stencil_jacobians])
         return _scatter(self._target, self._source, self._scale, entries, self.indices.size)
+
+
+#: pattern structures by (shape, free rows, stencil DOFs, slots): the strands of a groom share a few
+_STRUCTURES: dict = {}
+
+
+def _structure(free_row, n_rows, n_parameters, stencils):
+    """(target, source, CSC indices and indptr, CSR indptr, indices and order) of the pattern: value
+    entry target[k] sums the flattened stencil Jacobian entry source[k]."""
+    rows, cols, sources, offset = [], [], [], 0
+    for dof_index, slots in stencils:
+        count, width = dof_index.shape
+        shape = (count, width, slots.index.shape[1])
+        row = np.broadcast_to(free_row[dof_index][:, :, None], shape)
+        col = np.broadcast_to(slots.index[:, None, :], shape)
+        keep = (row >= 0) & (col >= 0)
+        rows.append(row[keep])
+        cols.append(col[keep])
+        sources.append(offset + np.flatnonzero(keep.ravel()))
+        offset += keep.size
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    keys = cols.astype(np.int64) * n_rows + rows
+    unique, target = np.unique(keys, return_inverse=True)
+    indices = (unique % n_rows).astype(np.int64)
+    indptr = np.searchsorted(unique // n_rows, np.arange(n_parameters + 1)).astype(np.int64)
+    # the same entries in row order: csr values = csc values[csr_order]
+    order = sp.csc_matrix((np.arange(unique.size, dtype=float), indices, indptr),
+                          shape=(n_rows, n_parameters)).tocsr()
+    order.sort_indices()
+    return (target.astype(np.int64), np.concatenate(sources), indices, indptr, order.indptr.astype(np.int64),
+            order.indices.astype(np.int64), order.data.astype(np.int64))
 
 
 class StrandJacobian:

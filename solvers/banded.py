@@ -233,6 +233,7 @@ def gram(J: sp.spmatrix | StrandJacobian, diagonal: np.ndarray, scale: float, bo
         indptr, indices, data = J.csr()
     else:
         J = sp.csr_matrix(J)
+        J = J if J.has_sorted_indices else J.sorted_indices()
         indptr, indices, data = J.indptr, J.indices.astype(np.int64), J.data
     n = J.shape[1]
     nb = n - border
@@ -262,15 +263,18 @@ def _row_span(indptr, indices, nb):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _accumulate_gram(indptr, indices, data, nb, scale, band, border, corner):  # pragma: no cover
+    """Add scale J^T J, each pair of a row's entries once (the row's columns are sorted, so the
+    band column comes first and border columns last)."""
     for r in range(indptr.size - 1):
         for a in range(indptr[r], indptr[r + 1]):
             ca, va = indices[a], scale * data[a]
-            for b in range(indptr[r], indptr[r + 1]):
+            for b in range(a, indptr[r + 1]):
                 cb = indices[b]
-                if ca < nb and cb < nb:
-                    if cb >= ca:
-                        band[cb - ca, ca] += va * data[b]
-                elif ca >= nb and cb < nb:
-                    border[ca - nb, cb] += va * data[b]
-                elif ca >= nb and cb >= nb:
+                if cb < nb:
+                    band[cb - ca, ca] += va * data[b]
+                elif ca < nb:
+                    border[cb - nb, ca] += va * data[b]
+                else:
                     corner[ca - nb, cb - nb] += va * data[b]
+                    if cb != ca:
+                        corner[cb - nb, ca - nb] += va * data[b]

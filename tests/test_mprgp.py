@@ -4,7 +4,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from sagfree.solvers.banded import bordered_band, factor_active, matvec, solve_factored
+from sagfree.solvers.banded import bordered_band, factor_active, gram, matvec, solve_factored
 from sagfree.solvers.mprgp import PRECONDITIONERS, solve_box_qp
 
 
@@ -100,3 +100,21 @@ def test_indefinite_matrix_is_reported(rng):
     H = -np.eye(6)
     result = solve_box_qp(bordered_band(sp.csr_matrix(H), 0), np.ones(6), -np.ones(6), np.ones(6))
     assert result.status == "not_positive_definite"
+
+
+@pytest.mark.parametrize("border", [0, 1])
+def test_gram_is_the_banded_gauss_newton_hessian(rng, border):
+    """banded.gram(J, d, s, border) = diag(d) + s J^T J, for a banded J with a dense last column
+    (the strand multiplier) given with each row's entries in reverse order."""
+    rows, n = 30, 25
+    J = rng.standard_normal((rows, n))
+    J[np.abs(np.subtract.outer(np.arange(rows) * n / rows, np.arange(n))) > 3] = 0.0
+    if border:
+        J[:, -1] = rng.standard_normal(rows)
+    indices = [np.flatnonzero(row)[::-1] for row in J]
+    reverse = sp.csr_matrix((np.concatenate([J[r, ix] for r, ix in enumerate(indices)]), np.concatenate(indices),
+                             np.cumsum([0] + [ix.size for ix in indices])), shape=J.shape)
+    assert not reverse.has_sorted_indices
+    d = rng.uniform(1.0, 2.0, n)
+    H = gram(reverse, d, 3.0, border).to_dense()
+    assert np.allclose(H, np.diag(d) + 3.0 * J.T @ J, rtol=1e-13, atol=1e-12)
