@@ -21,7 +21,7 @@ from sagfree.formulation.problem import Problem
 PARTS = [
     (alm, "_strand_mode_start", "strand-mode start (nested: its QPs, Jacobians, ...)"),
     (alm, "solve_box_qp", "MPRGP QPs with the active-set Cholesky"),
-    (Problem, "jacobian", "Jacobian dc/dp (compiled stencils + assembly)"),
+    (Problem, "strand_jacobian", "Jacobian dc/dp (compiled stencils + assembly)"),
     (alm, "gram", "Gauss-Newton Hessian J^T J (banded)"),
     (Problem, "residual", "residual c(p)"),
     (alm, "make_result", "Result: summaries and stability"),

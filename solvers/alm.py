@@ -50,6 +50,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+
 from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.problem import Problem
 
