@@ -15,40 +15,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-
-class JacobianPattern:
-    """Constant sparsity of dc/dp, with the scatter that sums stencil contributions into it.
-
-    Entry k of the values is sum over its contributions s of scale_s * (stencil Jacobian)_s, where
-    scale = -coefficient / D (the slot's parameter scaling over the row's force scale, see
-    parameters.SlotMap and dofs.row_scales). The index structure depends only on the strand's size,
-    root and parameter layout, so the strands of a groom share it (_STRUCTURES): building it took
-    1.3 ms of the 2 ms a 100-vertex Problem cost.
-    """
-
-    def __init__(self, free_row: np.ndarray, row_scale: np.ndarray, n_rows: int, n_parameters: int,
-                 stencils: list[tuple[np.ndarray, object]]):
-        """free_row: row of each DOF in c (-1: prescribed). stencils: (DOF index (S, width), SlotMap)
-        per stencil kind, in the order their Jacobians are passed to ``values``."""
-        self.shape = (n_rows, n_parameters)
-        key = (self.shape, free_row.tobytes(), *(a.tobytes() for ix, slots in stencils for a in (ix, slots.index)))
-        structure = _STRUCTURES.get(key)
-        if structure is None:
-            structure = _structure(free_row, n_rows, n_parameters, stencils)
-            if len(_STRUCTURES) >= 16:
-                _STRUCTURES.pop(next(iter(_STRUCTURES)))
-            _STRUCTURES[key] = structure
-        (self._target, self._source, self.indices, self.indptr, self.csr_indptr, self.csr_indices,
-         self.csr_order) = structure
-        self._scale = np.concatenate([
-            np.broadcast_to(-slots.coefficient[:, None, :] / row_scale[ix][:, :, None],
-                            (*ix.shape, slots.index.shape[1])).ravel()
-            for ix, slots in stencils])[self._source]
-
-    def values(self, *stencil_jacobians: np.ndarray) -> np.ndarray:
-        """CSC values of dc/dp from the stencil kinds' parameter Jacobians (in constructor order)."""
-        entries = np.concatenate([j.ravel() for j in stencil_jacobians])
-        return _scatter(self._target, self._source, self._scale, entries, self.indices.size)
+from .parameters import SlotMap
 
 
 #: pattern structures by (shape, free rows, stencil DOFs, slots): the strands of a groom share a few
@@ -82,6 +49,41 @@ def _structure(free_row, n_rows, n_parameters, stencils):
             order.indices.astype(np.int64), order.data.astype(np.int64))
 
 
+class JacobianPattern:
+    """Constant sparsity of dc/dp, with the scatter that sums stencil contributions into it.
+
+    Entry k of the values is sum over its contributions s of scale_s * (stencil Jacobian)_s, where
+    scale = -coefficient / D (the slot's parameter scaling over the row's force scale, see
+    parameters.SlotMap and dofs.row_scales). The index structure depends only on the strand's size,
+    root and parameter layout, so the strands of a groom share it (_STRUCTURES): building it took
+    1.3 ms of the 2 ms a 100-vertex Problem cost.
+    """
+
+    def __init__(self, free_row: np.ndarray, row_scale: np.ndarray, n_rows: int, n_parameters: int,
+                 stencils: list[tuple[np.ndarray, SlotMap]]):
+        """free_row: row of each DOF in c (-1: prescribed). stencils: (DOF index (S, width), SlotMap)
+        per stencil kind, in the order their Jacobians are passed to ``values``."""
+        self.shape = (n_rows, n_parameters)
+        key = (self.shape, free_row.tobytes(), *(a.tobytes() for ix, slots in stencils for a in (ix, slots.index)))
+        structure = _STRUCTURES.get(key)
+        if structure is None:
+            structure = _structure(free_row, n_rows, n_parameters, stencils)
+            if len(_STRUCTURES) >= 16:
+                _STRUCTURES.pop(next(iter(_STRUCTURES)))
+            _STRUCTURES[key] = structure
+        (self._target, self._source, self.indices, self.indptr, self.csr_indptr, self.csr_indices,
+         self.csr_order) = structure
+        self._scale = np.concatenate([
+            np.broadcast_to(-slots.coefficient[:, None, :] / row_scale[ix][:, :, None],
+                            (*ix.shape, slots.index.shape[1])).ravel()
+            for ix, slots in stencils])[self._source]
+
+    def values(self, *stencil_jacobians: np.ndarray) -> np.ndarray:
+        """CSC values of dc/dp from the stencil kinds' parameter Jacobians (in constructor order)."""
+        entries = np.concatenate([j.ravel() for j in stencil_jacobians])
+        return _scatter(self._target, self._source, self._scale, entries, self.indices.size)
+
+
 class StrandJacobian:
     """dc/dp (free DOFs x parameters) as values on a JacobianPattern; ``J @ x``, ``J.T @ y``."""
 
@@ -106,9 +108,6 @@ class StrandJacobian:
 
     def tocsc(self) -> sp.csc_matrix:
         return sp.csc_matrix((self.data.copy(), self.pattern.indices, self.pattern.indptr), shape=self.shape)
-
-    def toarray(self) -> np.ndarray:
-        return self.tocsc().toarray()
 
 
 class _Transposed:

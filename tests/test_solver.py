@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import sagfree
+from sagfree.solvers.alm import solve_alm
 from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
 from sagfree.solvers.kkt import kkt_optimality
 from sagfree.solvers.result import STIFFENED
@@ -112,7 +113,6 @@ def test_result_summaries_and_repr():
 def test_an_unmeasured_solve_skips_the_result_summaries():
     """measure=False (the strand-mode start) returns p and status only; the convergence message once
     reused the flag's name, so every converged start paid for stability and summaries (3 ms)."""
-    from sagfree.solvers.alm import solve_alm
     problem = sagfree.Problem(sagfree.scenes.horizontal(n=20), stiffness="strand")
     result = solve_alm(problem, measure=False)
     assert result.status == "converged", result.message
