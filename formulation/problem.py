@@ -95,6 +95,7 @@ class Problem:
                          np.ascontiguousarray(self.q_star[self._vertex_index]),
                          np.ascontiguousarray(self._reference(self.frames)))
         self._free_index = np.flatnonzero(self.free)
+        self._free_row_scale = self.row_scale[self._free_index]
         self._band_scatter = None  # built on the first hessian_band call
 
     def with_options(self, **changes) -> "Problem":
@@ -193,8 +194,7 @@ class Problem:
 
     def residual(self, p) -> np.ndarray:
         """c(p) = D^-1 S f(q*, p), unit-free, free rows in strand order."""
-        free = self._free_index
-        return self.forces(p)[free] / self.row_scale[free]
+        return self.forces(p)[self._free_index] / self._free_row_scale
 
     def jacobian(self, p) -> sp.csc_matrix:
         """dc/dp as a sparse (free DOFs x parameters) matrix, both axes in strand order (banded)."""
