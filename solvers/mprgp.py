@@ -28,6 +28,19 @@ set, so a CG step jumps to the face minimizer; refactored whenever the free set 
 first changed variable on), ``jacobi``
 (diag(H) on F) and ``none``. Iterations of each kind and factorizations are counted where they happen.
 The whole loop is compiled (numba): no Python per iteration.
+
+Primal-dual active-set prelude (Hintermueller, Ito & Kunisch, SIAM J. Optim. 13, 2002), with the
+active-set Cholesky only: minimize over the face of x0 exactly, guess the next active set as the
+variables that x - g puts out of the box (scaled variables, so c = 1), repeat up to
+``active_set_steps`` times or until the guess repeats (then the iterate is the solution). MPRGP starts
+from the projected iterate with the lowest f, or x0 if none is lower, so its convergence guarantee is
+kept. Each step costs one factorization, but jumps many bounds at once where MPRGP moves a front of
+bounds one variable per proportioning step. Measured on the Gauss-Newton QPs of 10 element-stiffness
+groom strands (``groom(10, 400, seed=1)``, replayed): 7.07 -> 3.11 factorizations per QP (1494 ->
+731 ms); at 100 vertices (``groom(40, 100, seed=1)``) 2.79 -> 2.58. It is not a cure-all: with the
+dense border of strand stiffness the guesses cycle (15.85 -> 24.08 factorizations per QP), so the
+default (``active_set_steps=None``) runs it only without a border; and on a 1-D obstacle problem
+started from 0 it over-activates and MPRGP then needs 68 factorizations instead of 34.
 """
 from __future__ import annotations
 
@@ -41,7 +54,8 @@ from .banded import BorderedBand, factor_active, gershgorin_bound, matvec, solve
 PRECONDITIONERS = {"none": 0, "jacobi": 1, "cholesky": 2}
 STATUS = {0: "converged", 1: "max_iterations", 2: "not_positive_definite", 3: "non_finite"}
 # layout of the counts array, filled inside the compiled loop
-CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS, FACTORED_ROWS = range(6)
+CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS, FACTORED_ROWS, ACTIVE_SET = range(7)
+ACTIVE_SET_STEPS = 3  # primal-dual active-set steps before MPRGP on a QP without border (see above)
 
 
 @dataclass
@@ -55,13 +69,17 @@ class QPResult:
     matvecs: int
     projected_gradient: float   # ||g^P||_2 at x
     factored_rows: int = 0      # band rows recomputed over all factorizations (partial ones count less)
+    active_set: int = 0         # primal-dual active-set steps of the prelude
 
 
 def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                  x0: np.ndarray | None = None, rtol: float = 1e-10, atol: float = 0.0,
                  max_iterations: int = 10_000, preconditioner: str = "cholesky",
-                 gamma: float = 1.0) -> QPResult:
+                 gamma: float = 1.0, active_set_steps: int | None = None) -> QPResult:
     """Solve the box QP from x0 (projected onto the box; default 0 projected).
+
+    active_set_steps: primal-dual active-set steps before MPRGP (with the active-set Cholesky only);
+    None takes ACTIVE_SET_STEPS for a QP without border and none with it (see the module docstring).
 
     The QP is first scaled symmetrically to a unit diagonal, x = S y with S = diag(H)^-1/2, so that
     the expansion step length abar = 1.9/||S H S|| and the stopping test do not depend on the units
@@ -78,14 +96,16 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
     lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
     y = np.clip(np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float) / s, lower / s,
                 upper / s)
-    counts = np.zeros(6, dtype=np.int64)
+    if active_set_steps is None:
+        active_set_steps = ACTIVE_SET_STEPS if hessian.corner.shape[0] == 0 else 0
+    counts = np.zeros(7, dtype=np.int64)
     status, pg = _mprgp(scaled.band, scaled.border, scaled.corner, s * np.asarray(b, dtype=float),
                         lower / s, upper / s, y, rtol, atol, max_iterations, PRECONDITIONERS[preconditioner],
-                        gamma, counts)
+                        gamma, active_set_steps, counts)
     x = np.clip(s * y, lower, upper)  # exactly on the bound, not one rounding off it
     return QPResult(x, STATUS[status], int(counts[CG]), int(counts[EXPANSION]),
                     int(counts[PROPORTIONING]), int(counts[FACTORIZATIONS]), int(counts[MATVECS]), pg,
-                    int(counts[FACTORED_ROWS]))
+                    int(counts[FACTORED_ROWS]), int(counts[ACTIVE_SET]))
 
 
 def _scaled(hessian: BorderedBand, s: np.ndarray) -> BorderedBand:
@@ -251,7 +271,7 @@ def _projected_search(band, border, corner, x, g, p, lower, upper, d, hd):  # pr
 
 @numba.njit(cache=True)
 def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations, precond, gamma,
-           counts):  # pragma: no cover - compiled
+           active_set_steps, counts):  # pragma: no cover - compiled
     n = x.size
     nb = band.shape[1]
     lb = np.empty((nb, band.shape[0]))  # factor columns (banded.factor_active)
@@ -269,6 +289,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
     free = np.empty(n, dtype=np.bool_)
     released = np.empty(n, dtype=np.bool_)
     factored_free = np.zeros(n, dtype=np.bool_)
+    factor_valid = np.zeros(1, dtype=np.bool_)  # lb, lborder, lcorner hold the factor of factored_free
     diag = np.empty(n)
     for j in range(nb):
         diag[j] = band[0, j]
@@ -285,11 +306,11 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
         return 3, np.sqrt(gp2)
     tol = max(atol, rtol * np.sqrt(gp2))
 
-    def precondition(mask, rhs, force):
+    def precondition(mask, rhs):
         """z = M^-1 rhs on the variables of mask (0 elsewhere)."""
         if precond == 2:
-            start = 0 if force else n  # first variable whose freedom changed
-            for i in range(n if not force else 0):
+            start = n if factor_valid[0] else 0  # first variable whose freedom changed
+            for i in range(start):
                 if mask[i] != factored_free[i]:
                     start = i
                     break
@@ -300,9 +321,10 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
             if start < n:
                 counts[FACTORIZATIONS] += 1
                 counts[FACTORED_ROWS] += nb - max(0, min(start, nb) - (band.shape[0] - 1))
-                if not factor_active(band, border, corner, mask, lb, lborder, lcorner, min(start, nb),
-                                     min(border_start, nb)):
-                    return False  # the QP stops (not positive definite): the factor is not reused
+                factor_valid[0] = factor_active(band, border, corner, mask, lb, lborder, lcorner,
+                                                min(start, nb), min(border_start, nb))
+                if not factor_valid[0]:
+                    return False  # the QP stops (not positive definite)
                 for i in range(n):
                     factored_free[i] = mask[i]
             solve_factored(lb, lborder, lcorner, rhs, z)
@@ -327,15 +349,62 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
         for i in range(n):
             g[i] -= b[i]
         gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
-        ok = precondition(free, phi, False)
+        ok = precondition(free, phi)
         for i in range(n):
             p[i] = z[i]
         return gp2, bb, tp, ok
 
-    if not precondition(free, phi, True):
+    def active_set_prelude():
+        """Primal-dual active-set steps from x (module docstring): best <- the lowest projected
+        iterate, or x if none is lower. False if a factorization broke down."""
+        f_best = _objective(band, border, corner, b, x, hp)
+        counts[MATVECS] += 1
+        for i in range(n):
+            best[i] = x[i]
+            trial[i] = x[i]
+        for step in range(active_set_steps):
+            counts[ACTIVE_SET] += 1
+            # the guess: x's own bounds first, then the variables that trial - g puts out of the box;
+            # direction = their bounds (0 on the guessed free set, ``released``)
+            for i in range(n):
+                v = trial[i] - g[i] if step > 0 else trial[i]
+                released[i] = lower[i] < v < upper[i]
+                direction[i] = 0.0 if released[i] else (lower[i] if v <= lower[i] else upper[i])
+            # the minimizer of the guessed face: H_FF x_F = b_F - H_FA x_A
+            matvec(band, border, corner, direction, hp)
+            for i in range(n):
+                phi[i] = b[i] - hp[i]
+            if not precondition(released, phi):
+                return False
+            repeated = True  # the same guess as the last step: trial is the QP's solution
+            for i in range(n):
+                v = z[i] if released[i] else direction[i]
+                repeated = repeated and v == trial[i]
+                trial[i] = v
+            matvec(band, border, corner, trial, g)
+            for i in range(n):
+                g[i] -= b[i]
+                p[i] = min(max(trial[i], lower[i]), upper[i])
+            f_trial = _objective(band, border, corner, b, p, hp)
+            counts[MATVECS] += 3
+            if f_trial < f_best:
+                f_best = f_trial
+                for i in range(n):
+                    best[i] = p[i]
+            if repeated:
+                break
+        return True
+
+    if precond == 2 and active_set_steps > 0 and gp2 > tol * tol:
+        if not active_set_prelude():
+            return 2, np.sqrt(gp2)
+        gp2, bb, tp, ok = restart_at_best()
+    else:
+        ok = precondition(free, phi)
+        for i in range(n):
+            p[i] = z[i]
+    if not ok:
         return 2, np.sqrt(gp2)
-    for i in range(n):
-        p[i] = z[i]
 
     for _ in range(max_iterations):
         if gp2 <= tol * tol:
@@ -358,7 +427,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                     x[i] -= acg * p[i]
                     g[i] -= acg * hp[i]
                 gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
-                if not precondition(free, phi, False):
+                if not precondition(free, phi):
                     return 2, np.sqrt(gp2)
                 zhp = 0.0
                 for i in range(n):
@@ -388,7 +457,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 # projected, backtracked along the projection arc; kept only if it beats (b), so
                 # the expansion decreases f at least as much as Dostal's step
                 if precond != 0:
-                    if not precondition(free, phi, False):
+                    if not precondition(free, phi):
                         return 2, np.sqrt(gp2)
                     t = 1.0
                     for _arc in range(12):
@@ -426,7 +495,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 for i in range(n):
                     released[i] = free[i] or beta[i] != 0.0
                     trial[i] = phi[i] + beta[i]
-                if not precondition(released, trial, False):
+                if not precondition(released, trial):
                     return 2, np.sqrt(gp2)
                 for i in range(n):
                     trial[i] = x[i]

@@ -118,3 +118,46 @@ def test_gram_is_the_banded_gauss_newton_hessian(rng, border):
     d = rng.uniform(1.0, 2.0, n)
     H = gram(reverse, d, 3.0, border).to_dense()
     assert np.allclose(H, np.diag(d) + 3.0 * J.T @ J, rtol=1e-13, atol=1e-12)
+
+
+def scaled_projected_gradient(H, b, lower, upper, x):
+    """||g^P||_2 of 1/2 x^T H x - b^T x at x, in the variables scaled to a unit diagonal."""
+    g = H @ x - b
+    ulps = 4e-16 * np.maximum(np.abs(lower), np.abs(upper))  # x = s * y is rounded once
+    g = np.where(x <= lower + ulps, np.minimum(g, 0.0), np.where(x >= upper - ulps, np.maximum(g, 0.0), g))
+    g[lower == upper] = 0.0  # fixed variables
+    g[np.abs(g) <= 1e-13 * (np.abs(H) @ np.abs(x) + np.abs(b))] = 0.0  # the rounding of H x - b
+    return float(np.linalg.norm(g / np.sqrt(np.diag(H))))
+
+
+def test_active_set_prelude_cuts_the_factorizations_of_groom_gauss_newton_qps(monkeypatch):
+    """On the element-stiffness Gauss-Newton QPs of a 200-vertex groom strand, the primal-dual
+    active-set prelude reaches the KKT point as MPRGP alone does, with fewer factorizations."""
+    import sagfree
+    import sagfree.solvers.alm as alm
+
+    captured = []
+
+    def capture(H, b, lower, upper, **options):
+        captured.append((H, b, lower, upper, options))
+        return solve_box_qp(H, b, lower, upper, **options)
+
+    monkeypatch.setattr(alm, "solve_box_qp", capture)
+    strand = sagfree.scenes.groom(3, 200, seed=1)[0]
+    assert sagfree.solve(sagfree.Problem(strand)).status == "converged"
+    banded = [qp for qp in captured if qp[0].corner.shape[0] == 0]
+    assert len(banded) >= 5
+    totals = {0: 0, None: 0}
+    for H, b, lower, upper, options in banded:
+        dense = H.to_dense()
+        start = np.clip(options.get("x0", np.zeros(b.size)), lower, upper)
+        initial = scaled_projected_gradient(dense, b, lower, upper, start)
+        for steps in totals:
+            result = solve_box_qp(H, b, lower, upper, **{**options, "active_set_steps": steps})
+            assert result.status == "converged"
+            assert (steps == 0) == (result.active_set == 0)
+            assert np.all(result.x >= lower) and np.all(result.x <= upper)
+            # the stopping test of solve_box_qp (rtol = 1e-10), recomputed here
+            assert scaled_projected_gradient(dense, b, lower, upper, result.x) <= 1e-9 * initial
+            totals[steps] += result.factorizations
+    assert totals[None] < 0.8 * totals[0], totals
