@@ -234,3 +234,15 @@ def test_stability_of_the_straight_rest_state():
     assert pb.stability(pb.p0) > 0
     dense = pb.hessian(pb.p0)[pb.free][:, pb.free].toarray()
     assert pb.stability(pb.p0) == pytest.approx(np.linalg.eigvalsh(dense)[0], rel=1e-6)
+
+
+def test_stability_of_a_compressed_rest_state_is_its_negative_eigenvalue():
+    """Rest lengths 5% above the edges compress the strand: the Hessian is indefinite, and the shifted
+    Lanczos of Problem.stability finds its most negative eigenvalue."""
+    pb = sagfree.Problem(sagfree.scenes.horizontal(n=12))
+    p = pb.p0.copy()
+    p[pb.blocks["rest_length"]] = 0.05
+    dense = pb.hessian(p)[pb.free][:, pb.free].toarray()
+    smallest = np.linalg.eigvalsh(dense)[0]
+    assert smallest < 0
+    assert pb.stability(p) == pytest.approx(smallest, rel=1e-6)
