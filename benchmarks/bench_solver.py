@@ -27,7 +27,7 @@ PREDECESSOR_SECONDS = 11.2  # Takahashi & Batty (CGF), 1.9K strands x 100 vertic
 def summary(results) -> dict:
     statuses = {s: sum(r.status == s for r in results) for s in ("converged", "infeasible",
                                                                  "max_iterations", "failed")}
-    keys = ("outer", "gauss_newton", "cg", "expansion", "proportioning", "active_set", "factorizations",
+    keys = ("outer", "gauss_newton", "cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
             "factored_rows", "tightened")
     counts = {k: np.array([r.iterations.get(k, 0) for r in results]) for k in keys}
     return dict(statuses=statuses, counts=counts, solve_time=np.array([r.time for r in results]))

@@ -119,8 +119,8 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     history: list[float] = []
     lower, upper = problem.layout.lower, problem.layout.upper
     model = _Model(problem)
-    counts = dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, active_set=0, factorizations=0,
-                  factored_rows=0, line_search=0, tightened=0)
+    counts = dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, active_set=0, interior=0,
+                  factorizations=0, factored_rows=0, line_search=0, tightened=0)
     if p_start is None:
         p_start = problem.p0
         if start == "auto" and problem.layout.stiffness == "element" and any(
@@ -167,7 +167,8 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                 if qp.status != "not_positive_definite":
                     break
             at_lower, at_upper = qp.x <= d_lower, qp.x >= d_upper
-            for key in ("cg", "expansion", "proportioning", "active_set", "factorizations", "factored_rows"):
+            for key in ("cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
+                        "factored_rows"):
                 counts[key] += getattr(qp, key)
             if qp.status not in ("converged", "max_iterations"):
                 return finish("failed", f"the Gauss-Newton QP failed ({qp.status}) at step "

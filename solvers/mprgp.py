@@ -41,6 +41,18 @@ groom strands (``groom(10, 400, seed=1)``, replayed): 7.07 -> 3.11 factorization
 dense border of strand stiffness the guesses cycle (15.85 -> 24.08 factorizations per QP), so the
 default (``active_set_steps=None``) runs it only without a border; and on a 1-D obstacle problem
 started from 0 it over-activates and MPRGP then needs 68 factorizations instead of 34.
+
+Interior-point fallback (interior_point module): where the active set can only be walked, MPRGP
+pays one factorization per step of the walk. On the strand-stiffness Gauss-Newton QPs of 400-vertex
+groom strands, the binding rest-curvature bound moves from vertex 1 to vertex 142 as the strand
+multiplier rises, one vertex per proportioning step (284 factorizations for one QP; a QP typically
+needs 1-5). So after WALKING factorizations the QP goes to Mehrotra's interior-point method (from
+its own start; ~15 iterations of one factorization each), and MPRGP goes on from the better of the
+two points (lower f) to the tolerance set by x0. Replayed on the QPs of ``groom(10, 400, seed=1)``
+and paired in one process: strand stiffness 2314 -> 1010 factorizations (896 -> 428 ms; 16 of 146
+QPs take the fallback), element stiffness unchanged (852; none does); on ``groom(40, 100,
+seed=1)`` 2583 -> 2319 (269 -> 247 ms). A budget of 20 saved a little more with the border but sent
+a 400-vertex element QP that needed ~25 factorizations to the fallback, which then cost 83 more.
 """
 from __future__ import annotations
 
@@ -50,12 +62,16 @@ import numba
 import numpy as np
 
 from .banded import BorderedBand, factor_active, gershgorin_bound, matvec, solve_factored
+from .interior_point import interior_point
 
 PRECONDITIONERS = {"none": 0, "jacobi": 1, "cholesky": 2}
-STATUS = {0: "converged", 1: "max_iterations", 2: "not_positive_definite", 3: "non_finite"}
+STATUS = {0: "converged", 1: "max_iterations", 2: "not_positive_definite", 3: "non_finite",
+          4: "walking"}  # 4: _mprgp's factorization budget ran out; solve_box_qp then takes the fallback
 # layout of the counts array, filled inside the compiled loop
-CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS, FACTORED_ROWS, ACTIVE_SET = range(7)
+CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS, FACTORED_ROWS, ACTIVE_SET, INTERIOR = range(8)
 ACTIVE_SET_STEPS = 3  # primal-dual active-set steps before MPRGP on a QP without border (see above)
+WALKING = 30  # factorizations after which MPRGP hands the QP to the interior-point method (see above)
+INTERIOR_GAP = 1e-6  # relative complementarity and dual residual at which the interior-point method stops
 
 
 @dataclass
@@ -70,6 +86,7 @@ class QPResult:
     projected_gradient: float   # ||g^P||_2 at x
     factored_rows: int = 0      # band rows recomputed over all factorizations (partial ones count less)
     active_set: int = 0         # primal-dual active-set steps of the prelude
+    interior: int = 0           # interior-point iterations of the fallback
 
 
 def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -79,7 +96,9 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
     """Solve the box QP from x0 (projected onto the box; default 0 projected).
 
     active_set_steps: primal-dual active-set steps before MPRGP (with the active-set Cholesky only);
-    None takes ACTIVE_SET_STEPS for a QP without border and none with it (see the module docstring).
+    None takes ACTIVE_SET_STEPS for a QP without border and none with it. After WALKING
+    factorizations, the interior-point fallback (module docstring); max_iterations counts MPRGP's
+    iterations over both of its runs.
 
     The QP is first scaled symmetrically to a unit diagonal, x = S y with S = diag(H)^-1/2, so that
     the expansion step length abar = 1.9/||S H S|| and the stopping test do not depend on the units
@@ -98,14 +117,31 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
                 upper / s)
     if active_set_steps is None:
         active_set_steps = ACTIVE_SET_STEPS if hessian.corner.shape[0] == 0 else 0
-    counts = np.zeros(7, dtype=np.int64)
-    status, pg = _mprgp(scaled.band, scaled.border, scaled.corner, s * np.asarray(b, dtype=float),
-                        lower / s, upper / s, y, rtol, atol, max_iterations, PRECONDITIONERS[preconditioner],
-                        gamma, active_set_steps, counts)
+    counts = np.zeros(8, dtype=np.int64)
+    sb, sl, su = s * np.asarray(b, dtype=float), lower / s, upper / s
+    status, pg, tol = _mprgp(scaled.band, scaled.border, scaled.corner, sb, sl, su, y, rtol, atol, max_iterations,
+                             PRECONDITIONERS[preconditioner], gamma, active_set_steps, WALKING, counts)
+    if STATUS[status] == "walking":
+        z = np.empty_like(y)
+        iterations, factorizations = interior_point(scaled.band, scaled.border, scaled.corner, sb, sl, su, z,
+                                                    INTERIOR_GAP)
+        counts[INTERIOR] += iterations
+        counts[FACTORIZATIONS] += factorizations
+        counts[FACTORED_ROWS] += factorizations * scaled.band.shape[1]
+        z = np.clip(z, sl, su)
+        work = np.empty_like(y)
+        if _objective(scaled.band, scaled.border, scaled.corner, sb, z, work) < _objective(
+                scaled.band, scaled.border, scaled.corner, sb, y, work):
+            y = z
+        # on from the better point, to the first call's tolerance
+        used = int(counts[CG] + counts[EXPANSION] + counts[PROPORTIONING])
+        status, pg, _ = _mprgp(scaled.band, scaled.border, scaled.corner, sb, sl, su, y, 0.0, tol,
+                               max(max_iterations - used, 0), PRECONDITIONERS[preconditioner], gamma, 0,
+                               np.iinfo(np.int64).max, counts)
     x = np.clip(s * y, lower, upper)  # exactly on the bound, not one rounding off it
     return QPResult(x, STATUS[status], int(counts[CG]), int(counts[EXPANSION]),
                     int(counts[PROPORTIONING]), int(counts[FACTORIZATIONS]), int(counts[MATVECS]), pg,
-                    int(counts[FACTORED_ROWS]), int(counts[ACTIVE_SET]))
+                    int(counts[FACTORED_ROWS]), int(counts[ACTIVE_SET]), int(counts[INTERIOR]))
 
 
 def _scaled(hessian: BorderedBand, s: np.ndarray) -> BorderedBand:
@@ -271,7 +307,7 @@ def _projected_search(band, border, corner, x, g, p, lower, upper, d, hd):  # pr
 
 @numba.njit(cache=True)
 def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations, precond, gamma,
-           active_set_steps, counts):  # pragma: no cover - compiled
+           active_set_steps, max_factorizations, counts):  # pragma: no cover - compiled
     n = x.size
     nb = band.shape[1]
     lb = np.empty((nb, band.shape[0]))  # factor columns (banded.factor_active)
@@ -303,7 +339,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
         g[i] -= b[i]
     gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
     if not np.isfinite(gp2):
-        return 3, np.sqrt(gp2)
+        return 3, np.sqrt(gp2), 0.0
     tol = max(atol, rtol * np.sqrt(gp2))
 
     def precondition(mask, rhs):
@@ -397,18 +433,20 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
 
     if precond == 2 and active_set_steps > 0 and gp2 > tol * tol:
         if not active_set_prelude():
-            return 2, np.sqrt(gp2)
+            return 2, np.sqrt(gp2), tol
         gp2, bb, tp, ok = restart_at_best()
     else:
         ok = precondition(free, phi)
         for i in range(n):
             p[i] = z[i]
     if not ok:
-        return 2, np.sqrt(gp2)
+        return 2, np.sqrt(gp2), tol
 
     for _ in range(max_iterations):
         if gp2 <= tol * tol:
-            return 0, np.sqrt(gp2)
+            return 0, np.sqrt(gp2), tol
+        if counts[FACTORIZATIONS] >= max_factorizations:
+            return 4, np.sqrt(gp2), tol
         if bb <= gamma * gamma * tp:
             matvec(band, border, corner, p, hp)
             counts[MATVECS] += 1
@@ -418,7 +456,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 php += p[i] * hp[i]
                 gp += g[i] * p[i]
             if not php > 0.0:
-                return 2, np.sqrt(gp2)
+                return 2, np.sqrt(gp2), tol
             acg = gp / php
             afeas, block = _feasible_step(x, p, lower, upper)
             if acg <= afeas:  # conjugate gradient step in the face
@@ -428,7 +466,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                     g[i] -= acg * hp[i]
                 gp2, bb, tp = _gradients(x, g, lower, upper, abar, phi, beta, free)
                 if not precondition(free, phi):
-                    return 2, np.sqrt(gp2)
+                    return 2, np.sqrt(gp2), tol
                 zhp = 0.0
                 for i in range(n):
                     zhp += z[i] * hp[i]
@@ -458,7 +496,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 # the expansion decreases f at least as much as Dostal's step
                 if precond != 0:
                     if not precondition(free, phi):
-                        return 2, np.sqrt(gp2)
+                        return 2, np.sqrt(gp2), tol
                     t = 1.0
                     for _arc in range(12):
                         for i in range(n):
@@ -473,7 +511,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                         t *= 0.5
                 gp2, bb, tp, ok = restart_at_best()
                 if not ok:
-                    return 2, np.sqrt(gp2)
+                    return 2, np.sqrt(gp2), tol
         else:  # proportioning step: release variables along the chopped gradient
             counts[PROPORTIONING] += 1
             matvec(band, border, corner, beta, hp)
@@ -496,7 +534,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                     released[i] = free[i] or beta[i] != 0.0
                     trial[i] = phi[i] + beta[i]
                 if not precondition(released, trial):
-                    return 2, np.sqrt(gp2)
+                    return 2, np.sqrt(gp2), tol
                 for i in range(n):
                     trial[i] = x[i]
                 _projected_search(band, border, corner, trial, g, z, lower, upper, direction, hp)
@@ -506,7 +544,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                         best[i] = trial[i]
             gp2, bb, tp, ok = restart_at_best()
             if not ok:
-                return 2, np.sqrt(gp2)
+                return 2, np.sqrt(gp2), tol
         if not np.isfinite(gp2):
-            return 3, np.sqrt(gp2)
-    return (0 if gp2 <= tol * tol else 1), np.sqrt(gp2)
+            return 3, np.sqrt(gp2), tol
+    return (0 if gp2 <= tol * tol else 1), np.sqrt(gp2), tol

@@ -28,14 +28,15 @@ class Result:
 
     p: normalized parameters (Problem layout); status: converged | infeasible | max_iterations | failed;
     iterations: counts by name (per solver; ours: outer, gauss_newton, cg, expansion, proportioning,
-    active_set = primal-dual active-set steps before MPRGP, factorizations, factored_rows = band rows the
-    (partial) refactorizations recomputed, line_search, tightened); residual_inf: |c(p)|_inf (unit-free);
-    max_force: largest residual force on a free vertex (N); objective: R(p); stiffening: per stiffness block
-    {max, mean, stiffened} (ratio to the specified stiffness, share of elements above 1.01); rest_change:
-    per rest block {max, mean} absolute change from p0 and {box} the largest change over the box half-width;
-    time (s); min_eigenvalue of the free-DOF Hessian at q* and stable = min_eigenvalue > 0; history: |c|_inf
-    after each primal step; physical: the parameters in physical units (Problem.physical: rest lengths m,
-    rest curvatures, rest twists rad, moduli Pa).
+    active_set = primal-dual active-set steps before MPRGP, interior = interior-point iterations of its
+    fallback, factorizations, factored_rows = band rows the (partial) refactorizations recomputed,
+    line_search, tightened); residual_inf: |c(p)|_inf (unit-free); max_force: largest residual force on a
+    free vertex (N); objective: R(p); stiffening: per stiffness block {max, mean, stiffened} (ratio to the
+    specified stiffness, share of elements above 1.01); rest_change: per rest block {max, mean} absolute
+    change from p0 and {box} the largest change over the box half-width; time (s); min_eigenvalue of the
+    free-DOF Hessian at q* and stable = min_eigenvalue > 0; history: |c|_inf after each primal step;
+    physical: the parameters in physical units (Problem.physical: rest lengths m, rest curvatures, rest
+    twists rad, moduli Pa).
     """
 
     solver: str

@@ -4,7 +4,11 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
+import sagfree
+import sagfree.solvers.alm as alm
+import sagfree.solvers.mprgp as mprgp
 from sagfree.solvers.banded import bordered_band, factor_active, gram, matvec, solve_factored
+from sagfree.solvers.interior_point import interior_point
 from sagfree.solvers.mprgp import PRECONDITIONERS, solve_box_qp
 
 
@@ -133,9 +137,6 @@ def scaled_projected_gradient(H, b, lower, upper, x):
 def test_active_set_prelude_cuts_the_factorizations_of_groom_gauss_newton_qps(monkeypatch):
     """On the element-stiffness Gauss-Newton QPs of a 200-vertex groom strand, the primal-dual
     active-set prelude reaches the KKT point as MPRGP alone does, with fewer factorizations."""
-    import sagfree
-    import sagfree.solvers.alm as alm
-
     captured = []
 
     def capture(H, b, lower, upper, **options):
@@ -161,3 +162,62 @@ def test_active_set_prelude_cuts_the_factorizations_of_groom_gauss_newton_qps(mo
             assert scaled_projected_gradient(dense, b, lower, upper, result.x) <= 1e-9 * initial
             totals[steps] += result.factorizations
     assert totals[None] < 0.8 * totals[0], totals
+
+
+@pytest.mark.parametrize("border", [0, 1])
+@pytest.mark.parametrize("seed", range(3))
+def test_interior_point_matches_an_exact_solution(seed, border):
+    """Mehrotra's method on random box QPs with two-sided, one-sided, free and fixed variables."""
+    rng = np.random.default_rng(seed)
+    n = 40
+    H = random_banded_spd(rng, n, 3, border)
+    s = 1.0 / np.sqrt(np.diag(H))
+    H = H * np.outer(s, s)  # the unit diagonal solve_box_qp hands over
+    b = rng.standard_normal(n) * 5
+    lower, upper = -rng.uniform(0.05, 1, n), rng.uniform(0.05, 1, n)
+    lower[:4] = -np.inf
+    upper[2:6] = np.inf
+    lower[6:8] = upper[6:8] = 0.3  # fixed
+    rest = lower < upper  # the reference takes the fixed variables out: b_R - H_RF x_F
+    reference = np.full(n, 0.3)
+    reference[rest] = exact_box_qp(H[np.ix_(rest, rest)], b[rest] - H[np.ix_(rest, ~rest)] @ reference[~rest],
+                                   np.maximum(lower[rest], -1e10), np.minimum(upper[rest], 1e10))
+    bb = bordered_band(sp.csr_matrix(H), border)
+    x = np.empty(n)
+    iterations, factorizations = interior_point(bb.band, bb.border, bb.corner, b, lower, upper, x, 1e-12)
+    assert 0 < iterations == factorizations < 60
+    assert np.all(x >= lower - 1e-12) and np.all(x <= upper + 1e-12)  # inside, up to the rounding of x + dx
+    assert np.abs(x - reference).max() < 1e-6 * max(1.0, np.abs(reference).max())
+
+
+def test_a_walking_qp_goes_to_the_interior_point_method(monkeypatch):
+    """The second strand-stiffness Gauss-Newton QP of strand 6 of groom(10, 400, seed=1) moves its
+    binding rest-curvature bound from vertex 1 to vertex 142 one proportioning step at a time (mprgp
+    module docstring): MPRGP alone needs ~280 factorizations, with the fallback a fraction of them,
+    to the same KKT point."""
+    captured = []
+
+    class Captured(Exception):
+        pass
+
+    def capture(H, b, lower, upper, **options):
+        captured.append((H, b, lower, upper, options))
+        if len(captured) == 2:
+            raise Captured  # the rest of the solve is not needed
+        return solve_box_qp(H, b, lower, upper, **options)
+
+    monkeypatch.setattr(alm, "solve_box_qp", capture)
+    with pytest.raises(Captured):
+        sagfree.solve(sagfree.Problem(sagfree.scenes.groom(10, 400, seed=1)[6]))
+    H, b, lower, upper, options = captured[1]
+    assert H.corner.shape == (1, 1)  # the strand multiplier's border
+    fallback = solve_box_qp(H, b, lower, upper, **options)
+    monkeypatch.setattr(mprgp, "WALKING", 10**9)
+    alone = solve_box_qp(H, b, lower, upper, **options)
+    assert alone.status == fallback.status == "converged"
+    assert alone.interior == 0 < fallback.interior
+    assert fallback.factorizations < 0.25 * alone.factorizations, (fallback.factorizations, alone.factorizations)
+    dense = H.to_dense()
+    initial = scaled_projected_gradient(dense, b, lower, upper, np.clip(options["x0"], lower, upper))
+    for result in (alone, fallback):
+        assert scaled_projected_gradient(dense, b, lower, upper, result.x) <= 1e-9 * initial
