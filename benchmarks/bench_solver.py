@@ -6,8 +6,9 @@ Prints three tables, all measured in this run:
 1. the whole groom on all cores: wall time, mean time per strand, statuses and iteration counts,
    with the ratio to the predecessor paper's published 11.2 s for 1.9K strands x 100 vertices
    (measured there on a larger CPU; a reference figure, not a run on this machine);
-2. time per strand against strand size (25 to 400 vertices) for the same physical strands, and the
-   time per vertex (flat = linear growth);
+2. time per strand against strand size (25 to 400 vertices) for the same physical strands, the
+   time per vertex (flat = linear growth) and the factorizations per Gauss-Newton step (flat = the
+   QPs do not need more active-set changes on longer strands);
 3. the preconditioner ablation on a subset: active-set Cholesky vs Jacobi vs none, with CG
    iterations, expansions, factorizations, time and the ratio to the active-set Cholesky.
 """
@@ -52,15 +53,18 @@ def groom_table(strands: int, vertices: int, jobs: int) -> None:
 
 def size_table(strands: int) -> None:
     print(f"\n2. time per strand against strand size ({strands} groom strands per size, one core)")
-    print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'GN steps':>9} {'converged':>10}")
+    print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'GN steps':>9} {'factor./GN':>11} "
+          f"{'converged':>10}")
     for n in (25, 50, 100, 200, 400):
         groom = sagfree.scenes.groom(strands, n, seed=0)
         sagfree.optimize(groom[:1], jobs=1)
         results = sagfree.optimize(groom, jobs=1)
         t = np.mean([r.time for r in results])
         steps = np.mean([r.iterations["gauss_newton"] for r in results])
+        factorizations = np.mean([r.iterations["factorizations"] for r in results])
         ok = sum(r.status == "converged" for r in results)
-        print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {steps:9.1f} {ok:>6}/{len(results)}")
+        print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {steps:9.1f} {factorizations / steps:11.1f} "
+              f"{ok:>6}/{len(results)}")
 
 
 def ablation_table(strands: int, vertices: int) -> None:
@@ -86,7 +90,7 @@ def main() -> None:
     parser.add_argument("--strands", type=int, default=1900)
     parser.add_argument("--vertices", type=int, default=100)
     parser.add_argument("--jobs", type=int, default=os.cpu_count())
-    parser.add_argument("--size-strands", type=int, default=10, help="strands per size in table 2")
+    parser.add_argument("--size-strands", type=int, default=20, help="strands per size in table 2")
     parser.add_argument("--ablation", type=int, default=10, help="strands in table 3")
     args = parser.parse_args()
     groom_table(args.strands, args.vertices, args.jobs)
