@@ -20,7 +20,7 @@ from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
 from .jacobian import JacobianPattern, StrandJacobian
 from .parameters import BLOCKS, ParameterLayout
-from .stencils import edge_stencil, vertex_stencil
+from .stencils import edge_stencil, vertex_fixed_shape, vertex_stencil
 from .strand import InvalidStrand, Strand
 
 #: Half bandwidth of every DOF Hessian: a vertex stencil spans 11 consecutive DOFs (dofs module).
@@ -59,7 +59,9 @@ class Problem:
         self.frames: Frames = bishop_frames(points, a1)
         self.q_star = dofs.interleave(points, strand.theta)
         self._edge = edge_stencil("stretch" in energies)
-        self._vertex = vertex_stencil(curvature, tuple(t for t in ("bend", "twist") if t in energies))
+        vertex_terms = tuple(t for t in ("bend", "twist") if t in energies)
+        self._vertex = vertex_stencil(curvature, vertex_terms)
+        self._vertex_fixed = vertex_fixed_shape(curvature, vertex_terms)
         self._edge_index = dofs.edge_stencil_index(n)
         self._vertex_index = dofs.vertex_stencil_index(n)
 
@@ -94,6 +96,9 @@ class Problem:
         self._at_rest = (np.ascontiguousarray(self.q_star[self._edge_index]),
                          np.ascontiguousarray(self.q_star[self._vertex_index]),
                          np.ascontiguousarray(self._reference(self.frames)))
+        # the vertex kinematics k and dk/dy at q* (stencils.FixedShapeFunctions), dk/dy transposed
+        kinematics, kinematics_jacobian = self._vertex_fixed.kinematics(*self._at_rest[1:])
+        self._kinematics_at_rest = (kinematics, np.ascontiguousarray(kinematics_jacobian.transpose(0, 2, 1)))
         self._free_index = np.flatnonzero(self.free)
         self._free_row_scale = self.row_scale[self._free_index]
         self._band_scatter = None  # built on the first hessian_band call
@@ -182,11 +187,18 @@ class Problem:
         return float(self._edge.energy(*edge)[0].sum() + self._vertex.energy(*vertex)[0].sum())
 
     def elastic_gradient(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
-        """grad_q E(q, p) (4n-1): N on positions, N m on angles."""
+        """grad_q E(q, p) (4n-1): N on positions, N m on angles. At q* (q and frames None) the vertex
+        stencils' part is (dk/dy)^T dE/dk with the kinematics k at q* (stencils.FixedShapeFunctions)."""
         edge, vertex = self._stencil_inputs(p, q, frames)
         size = self.q_star.size
+        if q is None and frames is None:
+            kinematics, transposed = self._kinematics_at_rest
+            (by_kinematics,) = self._vertex_fixed.gradient(kinematics, *vertex[2:])
+            vertex_gradient = (transposed @ by_kinematics[:, :, None])[:, :, 0]
+        else:
+            (vertex_gradient,) = self._vertex.gradient(*vertex)
         return (np.bincount(self._edge_index.ravel(), self._edge.gradient(*edge)[0].ravel(), size)
-                + np.bincount(self._vertex_index.ravel(), self._vertex.gradient(*vertex)[0].ravel(), size))
+                + np.bincount(self._vertex_index.ravel(), vertex_gradient.ravel(), size))
 
     def forces(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """Generalized force f = -grad_q E(q, p) + f_gravity (4n-1), N and N m."""
@@ -201,10 +213,13 @@ class Problem:
         return self.strand_jacobian(p).tocsc()
 
     def strand_jacobian(self, p) -> StrandJacobian:
-        """dc/dp with compiled products (jacobian module): what the solvers iterate with."""
+        """dc/dp with compiled products (jacobian module): what the solvers iterate with. The vertex
+        stencils' blocks are (dk/dy)^T d(dE/dk)/d(physical) at q* (stencils.FixedShapeFunctions)."""
         edge, vertex = self._stencil_inputs(p, None, None)
+        kinematics, transposed = self._kinematics_at_rest
+        (by_kinematics,) = self._vertex_fixed.parameter_jacobian(kinematics, *vertex[2:])
         return StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
-            self._edge.parameter_jacobian(*edge)[0], self._vertex.parameter_jacobian(*vertex)[0]))
+            self._edge.parameter_jacobian(*edge)[0], transposed @ by_kinematics))
 
     def _hessian_blocks(self, p, q, frames):
         edge, vertex = self._stencil_inputs(p, q, frames)

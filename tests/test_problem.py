@@ -57,6 +57,23 @@ def test_forces_are_negative_energy_gradient(variant, rng):
         assert np.allclose(pb.forces(p, q), pb.gravity_forces - pb.elastic_gradient(p, q))
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_fixed_shape_chain_rule_matches_the_full_stencils(variant, rng):
+    """At q*, residual and Jacobian go through the kinematics' chain rule (stencils.FixedShapeFunctions);
+    elsewhere through the full stencils. Both at q* agree to rounding."""
+    for strand in verification_strands(seed=4).values():
+        pb = sagfree.Problem(strand, curvature=variant)
+        p = perturbed_parameters(pb, rng)
+        full = pb.elastic_gradient(p, pb.q_star.copy(), pb.frames)  # q given: the full stencils
+        assert np.allclose(pb.elastic_gradient(p), full, rtol=1e-12, atol=1e-12 * np.abs(full).max())
+        edge, vertex = pb._stencil_inputs(p, pb.q_star.copy(), pb.frames)
+        (full_jacobian,) = pb._vertex.parameter_jacobian(*vertex)
+        kinematics, transposed = pb._kinematics_at_rest
+        (by_kinematics,) = pb._vertex_fixed.parameter_jacobian(kinematics, *vertex[2:])
+        assert np.allclose(transposed @ by_kinematics, full_jacobian, rtol=1e-12,
+                           atol=1e-12 * np.abs(full_jacobian).max())
+
+
 def test_gradient_check_detects_a_wrong_gradient(rng):
     pb = sagfree.Problem(sagfree.scenes.helix(n=12))
     p = perturbed_parameters(pb, rng)
