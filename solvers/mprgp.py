@@ -146,13 +146,26 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
 
 def _scaled(hessian: BorderedBand, s: np.ndarray) -> BorderedBand:
     """S H S for S = diag(s)."""
-    band = hessian.band.copy()
-    nb = band.shape[1]
-    for k in range(band.shape[0]):
-        band[k, : nb - k] *= s[k:nb] * s[: nb - k]
-    tail = s[nb:]
-    return BorderedBand(band, hessian.border * tail[:, None] * s[None, :nb],
-                        hessian.corner * tail[:, None] * tail[None, :])
+    return BorderedBand(*_scale_symmetric(hessian.band, hessian.border, hessian.corner, s))
+
+
+@numba.njit(cache=True)
+def _scale_symmetric(band, border, corner, s):  # pragma: no cover - compiled
+    """(band, border, corner) of S H S, S = diag(s); the band's unused tail entries are copied."""
+    w1, nb = band.shape
+    m = corner.shape[0]
+    scaled_band = band.copy()
+    for k in range(w1):
+        for j in range(nb - k):
+            scaled_band[k, j] *= s[j + k] * s[j]
+    scaled_border = np.empty_like(border)
+    scaled_corner = np.empty_like(corner)
+    for r in range(m):
+        for j in range(nb):
+            scaled_border[r, j] = border[r, j] * s[nb + r] * s[j]
+        for c in range(m):
+            scaled_corner[r, c] = corner[r, c] * s[nb + r] * s[nb + c]
+    return scaled_band, scaled_border, scaled_corner
 
 
 @numba.njit(cache=True)
@@ -392,10 +405,11 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
 
     def active_set_prelude():
         """Primal-dual active-set steps from x (module docstring): best <- the lowest projected
-        iterate, or x if none is lower. False if a factorization broke down."""
-        f_best = _objective(band, border, corner, b, x, hp)
-        counts[MATVECS] += 1
+        iterate, or x if none is lower. False if a factorization broke down. f(y) = y.(g - b) / 2
+        with g = H y - b saves a product wherever g is at hand."""
+        f_best = 0.0
         for i in range(n):
+            f_best += 0.5 * x[i] * (g[i] - b[i])
             best[i] = x[i]
             trial[i] = x[i]
         for step in range(active_set_steps):
@@ -408,6 +422,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 direction[i] = 0.0 if released[i] else (lower[i] if v <= lower[i] else upper[i])
             # the minimizer of the guessed face: H_FF x_F = b_F - H_FA x_A
             matvec(band, border, corner, direction, hp)
+            counts[MATVECS] += 1
             for i in range(n):
                 phi[i] = b[i] - hp[i]
             if not precondition(released, phi):
@@ -417,18 +432,24 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
                 v = z[i] if released[i] else direction[i]
                 repeated = repeated and v == trial[i]
                 trial[i] = v
+            if repeated:
+                break  # g and f of trial are known from the last step
             matvec(band, border, corner, trial, g)
+            counts[MATVECS] += 1
+            inside = True
+            f_trial = 0.0
             for i in range(n):
                 g[i] -= b[i]
                 p[i] = min(max(trial[i], lower[i]), upper[i])
-            f_trial = _objective(band, border, corner, b, p, hp)
-            counts[MATVECS] += 3
+                inside = inside and p[i] == trial[i]
+                f_trial += 0.5 * trial[i] * (g[i] - b[i])
+            if not inside:
+                f_trial = _objective(band, border, corner, b, p, hp)
+                counts[MATVECS] += 1
             if f_trial < f_best:
                 f_best = f_trial
                 for i in range(n):
                     best[i] = p[i]
-            if repeated:
-                break
         return True
 
     if precond == 2 and active_set_steps > 0 and gp2 > tol * tol:
