@@ -205,3 +205,30 @@ def test_the_element_solve_starts_from_the_initial_penalty():
         result = sagfree.solve(sagfree.Problem(strand))
         assert result.status == "converged", result.message
         assert result.iterations["gauss_newton"] < 100
+
+
+@pytest.mark.parametrize("dense_column", [True, False])
+def test_least_squares_multipliers_minimize_the_scaled_lagrangian_gradient(dense_column, rng):
+    """kkt.least_squares_multipliers against dense least squares on a banded J, with a column that
+    fills every row (as the strand multiplier's; kept out of the sparse normal matrix by the Woodbury
+    identity) and without it."""
+    import scipy.sparse as sp
+
+    from sagfree.solvers.kkt import least_squares_multipliers
+
+    rows, n = 200, 300  # more parameters than constraints, as in sagfree
+    J = rng.standard_normal((rows, n))
+    J[np.abs(np.subtract.outer(np.arange(rows) * n / rows, np.arange(n))) > 4] = 0.0
+    if dense_column:
+        J[:, -1] = rng.standard_normal(rows)
+    scale = (J**2).sum(axis=0) + 1.0
+    lower, upper = -np.ones(n), np.ones(n)
+    p = rng.uniform(-0.5, 0.5, n)
+    p[::9] = lower[::9]  # bound variables, which the multipliers ignore
+    gradient = rng.standard_normal(n)
+    lam = least_squares_multipliers(gradient, sp.csc_matrix(J), scale, p, lower, upper)
+    free = (p > lower) & (p < upper)
+    A, r = (J / np.sqrt(scale))[:, free], (gradient / np.sqrt(scale))[free]
+    reference = np.linalg.lstsq(A.T, -r, rcond=None)[0]
+    assert np.linalg.norm(A.T @ reference + r) > 0.1 * np.linalg.norm(r)  # no exact multipliers
+    assert np.allclose(lam, reference, rtol=1e-8, atol=1e-10 * np.abs(reference).max())
