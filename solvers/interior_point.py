@@ -30,12 +30,15 @@ TO_BOUNDARY = 0.99  # fraction of the step to the boundary of the positive ortha
 @numba.njit(cache=True)
 def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # pragma: no cover
     """x <- an approximate minimizer, inside the box up to the rounding of the updates x + alpha dx
-    (solve_box_qp clips it; x is only written).
+    (solve_box_qp clips it; x is only written), with the variables whose slack ended below their
+    multiplier put on that bound (_snap_to_active_bounds).
 
-    Stops when the complementarity mu = (s_l.z_l + s_u.z_u) / bounds falls below ``relative_gap``
-    times its start and the dual residual ||H x - b - z_l + z_u||_inf below ``relative_gap`` times
-    its start, after MAX_ITERATIONS, or when a factorization breaks down (x is then the last
-    iterate). Returns (iterations, factorizations).
+    Stops when the duality gap s_l.z_l + s_u.z_u (which bounds f(x) - f* at a dual-feasible point)
+    falls below ``relative_gap`` (|f(x)| + tiny) and the dual residual ||H x - b - z_l + z_u||_inf
+    below ``relative_gap`` ||b||_inf, after MAX_ITERATIONS, or when a factorization breaks down (x is
+    then the last iterate). (Relative to their starting values instead, the test stopped 16% above
+    the minimum on a 400-vertex element-stiffness QP, with no bound identified.) Returns
+    (iterations, factorizations).
     """
     n = x.size
     nb = band.shape[1]
@@ -80,20 +83,22 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
     dzu_aff = np.zeros(n)
     dzl = np.zeros(n)
     dzu = np.zeros(n)
-    mu0, rd0 = -1.0, -1.0
+    b_norm = 1e-300
+    for i in range(n):
+        b_norm = max(b_norm, abs(b[i]))
     factorizations = 0
     for iteration in range(MAX_ITERATIONS):
         matvec(band, border, corner, x, hx)
-        residual, gap = 0.0, 0.0
+        residual, gap, f = 0.0, 0.0, 0.0
         for i in range(n):
             rd[i] = (hx[i] - b[i] - zl[i] + zu[i]) if inner[i] else 0.0
             residual = max(residual, abs(rd[i]))
+            f += x[i] * (0.5 * hx[i] - b[i])
             if inner[i]:
                 gap += (sl[i] * zl[i] if has_l[i] else 0.0) + (su[i] * zu[i] if has_u[i] else 0.0)
         mu = gap / max(count, 1)
-        if mu0 < 0.0:
-            mu0, rd0 = max(mu, 1e-300), max(residual, 1e-300)
-        if mu <= relative_gap * mu0 and residual <= relative_gap * rd0:
+        if gap <= relative_gap * (abs(f) + 1e-300) and residual <= relative_gap * b_norm:
+            _snap_to_active_bounds(x, lower, upper, has_l, has_u, inner, sl, su, zl, zu)
             return iteration, factorizations
         # H + D on the inner variables (the identity on fixed ones, inside factor_active)
         for j in range(nb):
@@ -153,7 +158,21 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
             if has_u[i]:
                 su[i] -= alpha_p * dx[i]
                 zu[i] += alpha_d * dzu[i]
+    _snap_to_active_bounds(x, lower, upper, has_l, has_u, inner, sl, su, zl, zu)
     return MAX_ITERATIONS, factorizations
+
+
+@numba.njit(cache=True)
+def _snap_to_active_bounds(x, lower, upper, has_l, has_u, inner, sl, su, zl, zu):  # pragma: no cover
+    """Put x on the bounds whose slack is below its multiplier (s < z): the active set the iterate
+    points to. MPRGP, which the point is handed to, activates bounds one expansion at a time: from
+    the interior point itself it took 237 expansions on an element-stiffness QP of a 400-vertex
+    groom strand (269 factorizations in all)."""
+    for i in range(x.size):
+        if inner[i] and has_l[i] and sl[i] < zl[i]:
+            x[i] = lower[i]
+        elif inner[i] and has_u[i] and su[i] < zu[i]:
+            x[i] = upper[i]
 
 
 @numba.njit(cache=True, inline="always")

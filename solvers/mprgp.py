@@ -47,12 +47,15 @@ pays one factorization per step of the walk. On the strand-stiffness Gauss-Newto
 groom strands, the binding rest-curvature bound moves from vertex 1 to vertex 142 as the strand
 multiplier rises, one vertex per proportioning step (284 factorizations for one QP; a QP typically
 needs 1-5). So after WALKING factorizations the QP goes to Mehrotra's interior-point method (from
-its own start; ~15 iterations of one factorization each), and MPRGP goes on from the better of the
-two points (lower f) to the tolerance set by x0. Replayed on the QPs of ``groom(10, 400, seed=1)``
-and paired in one process: strand stiffness 2314 -> 1010 factorizations (896 -> 428 ms; 16 of 146
-QPs take the fallback), element stiffness unchanged (852; none does); on ``groom(40, 100,
-seed=1)`` 2583 -> 2319 (269 -> 247 ms). A budget of 20 saved a little more with the border but sent
-a 400-vertex element QP that needed ~25 factorizations to the fallback, which then cost 83 more.
+its own start; 12-25 iterations of one factorization each, to a relative duality gap of
+INTERIOR_GAP, then put on the bounds it identifies), and MPRGP goes on, with the prelude, from the
+better of the two points (lower f) to the tolerance set by x0. (Without the prelude, MPRGP needed
+up to 224 expansions, one bound each, to activate the bounds the interior point left just inside
+the box on an element-stiffness QP; with it, 4 factorizations.) Replayed, paired in one process:
+strand stiffness 2314 -> 1012 factorizations (880 -> 418 ms) on the QPs of ``groom(10, 400,
+seed=1)``, 2763 -> 1127 (1034 -> 457 ms) on ``groom(20, 400, seed=0)``, 2583 -> 2315 (268 -> 242
+ms) on ``groom(40, 100, seed=1)``; element stiffness 852 -> 852, 1027 -> 1051 (667 -> 676 ms) and
+1201 -> 1201 (the fallback is rare there).
 """
 from __future__ import annotations
 
@@ -71,7 +74,7 @@ STATUS = {0: "converged", 1: "max_iterations", 2: "not_positive_definite", 3: "n
 CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS, FACTORED_ROWS, ACTIVE_SET, INTERIOR = range(8)
 ACTIVE_SET_STEPS = 3  # primal-dual active-set steps before MPRGP on a QP without border (see above)
 WALKING = 30  # factorizations after which MPRGP hands the QP to the interior-point method (see above)
-INTERIOR_GAP = 1e-6  # relative complementarity and dual residual at which the interior-point method stops
+INTERIOR_GAP = 1e-10  # relative duality gap and dual residual at which the interior-point method stops
 
 
 @dataclass
@@ -133,11 +136,12 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
         if _objective(scaled.band, scaled.border, scaled.corner, sb, z, work) < _objective(
                 scaled.band, scaled.border, scaled.corner, sb, y, work):
             y = z
-        # on from the better point, to the first call's tolerance
+        # on from the better point (with the prelude: the interior point's bounds are not all
+        # identified), to the first call's tolerance
         used = int(counts[CG] + counts[EXPANSION] + counts[PROPORTIONING])
         status, pg, _ = _mprgp(scaled.band, scaled.border, scaled.corner, sb, sl, su, y, 0.0, tol,
-                               max(max_iterations - used, 0), PRECONDITIONERS[preconditioner], gamma, 0,
-                               np.iinfo(np.int64).max, counts)
+                               max(max_iterations - used, 0), PRECONDITIONERS[preconditioner], gamma,
+                               active_set_steps, np.iinfo(np.int64).max, counts)
     x = np.clip(s * y, lower, upper)  # exactly on the bound, not one rounding off it
     return QPResult(x, STATUS[status], int(counts[CG]), int(counts[EXPANSION]),
                     int(counts[PROPORTIONING]), int(counts[FACTORIZATIONS]), int(counts[MATVECS]), pg,
