@@ -10,12 +10,12 @@ with the time per vertex, which stays flat when the cost is linear.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import numpy as np
 
 import sagfree
-from sagfree.formulation import stencils
 from sagfree.formulation.compiled import BatchFunction
 
 
@@ -28,13 +28,14 @@ def evaluate_all(problems) -> float:
 
 
 def with_virtual_machine(problem):
-    """The same problem evaluated by CasADi's virtual machine instead of compiled C."""
+    """The same problem evaluated by CasADi's virtual machine instead of compiled C (every stencil
+    function: the full stencils and the vertex stencil's fixed-shape functions)."""
     vm = sagfree.Problem(problem.strand)
-    for name in ("_edge", "_vertex"):
+    for name in ("_edge", "_vertex", "_vertex_fixed"):
         compiled = getattr(vm, name)
-        setattr(vm, name, stencils.StencilFunctions(*(BatchFunction(f.function) for f in (
-            compiled.energy, compiled.gradient, compiled.parameter_jacobian, compiled.hessian,
-            compiled.geometry))))
+        setattr(vm, name, dataclasses.replace(compiled, **{
+            field.name: BatchFunction(getattr(compiled, field.name).function)
+            for field in dataclasses.fields(compiled)}))
     return vm
 
 
