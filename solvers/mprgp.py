@@ -55,7 +55,10 @@ the box on an element-stiffness QP; with it, 4 factorizations.) Replayed, paired
 strand stiffness 2314 -> 1012 factorizations (880 -> 418 ms) on the QPs of ``groom(10, 400,
 seed=1)``, 2763 -> 1127 (1034 -> 457 ms) on ``groom(20, 400, seed=0)``, 2583 -> 2315 (268 -> 242
 ms) on ``groom(40, 100, seed=1)``; element stiffness 852 -> 852, 1027 -> 1051 (667 -> 676 ms) and
-1201 -> 1201 (the fallback is rare there).
+1201 -> 1201 (the fallback is rare there); all with a budget of 30 factorizations. A budget of 20
+took the strand-stiffness QPs a further 10% down (1127 -> 1003, 1012 -> 863, 2315 -> 2146
+factorizations) and the element ones 2-5% up (1051 -> 1101, 852 -> 869, 1201 -> 1201): 2-6% less
+QP time in all, so WALKING = 20; 15 saved a little more on strand QPs and lost more on element QPs.
 """
 from __future__ import annotations
 
@@ -73,7 +76,7 @@ STATUS = {0: "converged", 1: "max_iterations", 2: "not_positive_definite", 3: "n
 # layout of the counts array, filled inside the compiled loop
 CG, EXPANSION, PROPORTIONING, FACTORIZATIONS, MATVECS, FACTORED_ROWS, ACTIVE_SET, INTERIOR = range(8)
 ACTIVE_SET_STEPS = 3  # primal-dual active-set steps before MPRGP on a QP without border (see above)
-WALKING = 30  # factorizations after which MPRGP hands the QP to the interior-point method (see above)
+WALKING = 20  # factorizations after which MPRGP hands the QP to the interior-point method (see above)
 INTERIOR_GAP = 1e-10  # relative duality gap and dual residual at which the interior-point method stops
 
 
