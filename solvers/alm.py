@@ -5,7 +5,17 @@
 Outer loop (augmented Lagrangian, PERMON SMALXE-style accounting):
     L(p, lam) = R(p) + lam^T c(p) + mu/2 |c(p)|^2,
     after each inner solve lam <- lam + mu c; mu <- 10 mu when |c|_inf did not fall below
-    a quarter of its previous value (the constraint stalls).
+    a quarter of its previous value (the constraint stalls). mu starts at mu0 = 100 (in both the
+    strand-stiffness start and the element solve). From 10, the first inner solve of a 400-vertex
+    strand's start ended at |c|_inf = 10 (worse than p0's 1: the regularizer outweighed the
+    penalty), and 11 more outer iterations followed. Against mu0 = 10, mean Gauss-Newton steps per
+    strand (same statuses and R): groom(40, 100, seed=0) 18.5 -> 12.9, groom(100, 100, seed=5)
+    21.7 -> 15.4, groom(40, 25, seed=0) 16.8 -> 12.7, groom(20, 200, seed=3) 24.3 -> 17.9,
+    groom(20, 400, seed=0) 23.8 -> 18.5, groom(10, 400, seed=1..3) 36.0, 45.4, 32.6 -> 26.2, 21.6,
+    24.6; factorizations 10-40% fewer. Larger is not safer: mu0 = 1000 was better still up to 200
+    vertices, but 3000 sent 400-vertex strands crawling (groom(10, 400, seed=1): 63 steps, 1e4: 85
+    and one max_iterations): Gauss-Newton omits lam^T c'', and the usable range of mu narrows as the
+    bending modes soften with n.
 Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu J^T J (damped by
     1e-13 of its diagonal, see _Model.hessian); each step solves the box QP
     min g^T d + 1/2 d^T H d,  lower - p <= d <= upper - p  by MPRGP, preconditioned by the active-set
@@ -102,7 +112,7 @@ class _Model:
 
 
 def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
-              max_gauss_newton: int = 600, mu0: float = 10.0, mu_growth: float = 10.0,
+              max_gauss_newton: int = 600, mu0: float = 100.0, mu_growth: float = 10.0,
               omega0: float = 1.0, preconditioner: str = "cholesky", qp_rtol: float = 1e-10,
               start: str = "auto", p_start=None, confirm: bool = True, measure: bool = True) -> Result:
     """Solve ``problem`` with our augmented Lagrangian solver; see the module docstring.
