@@ -256,7 +256,7 @@ class Problem:
         eigenvalue 1 / (lambda_min + tau). tau = 0 when the banded Cholesky of H succeeds; when it
         fails (H is not positive definite), tau grows 10-fold from 1e-14 of the largest entry until
         it succeeds, so tau is within 10x of -lambda_min. (The banded eigensolver used before costs
-        O(n^2): 53 ms of a 400-vertex strand's ~200, against ~5 ms now.)
+        O(n^2): 53-56 ms on a 400-vertex groom strand, against ~6 ms now.)
         """
         banded = self.hessian_band(p)[:, self.first_free:]
         size = banded.shape[1]
