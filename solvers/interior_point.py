@@ -46,14 +46,12 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
     m = corner.shape[0]
     has_l = np.isfinite(lower)
     has_u = np.isfinite(upper)
-    fixed = np.zeros(n, dtype=np.bool_)
-    inner = np.empty(n, dtype=np.bool_)
+    inner = np.empty(n, dtype=np.bool_)  # not fixed (l < u)
     sl, su, zl, zu = np.ones(n), np.ones(n), np.zeros(n), np.zeros(n)
     count = 0
     for i in range(n):
-        fixed[i] = has_l[i] and has_u[i] and upper[i] <= lower[i]
-        inner[i] = not fixed[i]
-        if fixed[i]:
+        inner[i] = not (has_l[i] and has_u[i] and upper[i] <= lower[i])
+        if not inner[i]:
             x[i] = lower[i]
         elif has_l[i] and has_u[i]:
             width = upper[i] - lower[i]
@@ -84,6 +82,8 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
     dzu_aff = np.zeros(n)
     dzl = np.zeros(n)
     dzu = np.zeros(n)
+    target_l = np.zeros(n)  # right-hand sides of the linearized complementarity s z = sigma mu
+    target_u = np.zeros(n)
     b_norm = 1e-300
     for i in range(n):
         b_norm = max(b_norm, abs(b[i]))
@@ -127,23 +127,21 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
                 if not inner[i]:
                     continue
                 rhs[i] = -rd[i]
-                if has_l[i]:  # target s_l z_l = sigma mu - ds_l dz_l (affine products in the corrector)
-                    cl = sigma_mu - sl[i] * zl[i] - (dx_aff[i] * dzl_aff[i] if corrector else 0.0)
-                    rhs[i] += cl / sl[i]
-                if has_u[i]:
-                    cu = sigma_mu - su[i] * zu[i] + (dx_aff[i] * dzu_aff[i] if corrector else 0.0)
-                    rhs[i] -= cu / su[i]
+                if has_l[i]:  # s_l dz_l + z_l ds_l = sigma mu - s_l z_l - ds_l dz_l (affine, corrector only)
+                    target_l[i] = sigma_mu - sl[i] * zl[i] - (dx_aff[i] * dzl_aff[i] if corrector else 0.0)
+                    rhs[i] += target_l[i] / sl[i]
+                if has_u[i]:  # ds_u = -dx
+                    target_u[i] = sigma_mu - su[i] * zu[i] + (dx_aff[i] * dzu_aff[i] if corrector else 0.0)
+                    rhs[i] -= target_u[i] / su[i]
             solve_factored(cols, lborder, lcorner, rhs, dx)
             for i in range(n):
                 if not inner[i]:
                     dx[i] = 0.0
                     continue
                 if has_l[i]:
-                    cl = sigma_mu - sl[i] * zl[i] - (dx_aff[i] * dzl_aff[i] if corrector else 0.0)
-                    dzl[i] = (cl - zl[i] * dx[i]) / sl[i]
+                    dzl[i] = (target_l[i] - zl[i] * dx[i]) / sl[i]
                 if has_u[i]:
-                    cu = sigma_mu - su[i] * zu[i] + (dx_aff[i] * dzu_aff[i] if corrector else 0.0)
-                    dzu[i] = (cu + zu[i] * dx[i]) / su[i]
+                    dzu[i] = (target_u[i] + zu[i] * dx[i]) / su[i]
             if not corrector:
                 for i in range(n):
                     dx_aff[i], dzl_aff[i], dzu_aff[i] = dx[i], dzl[i], dzu[i]

@@ -119,12 +119,11 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
     s = 1.0 / np.sqrt(diagonal)
     scaled = _scaled(hessian, s)
     lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
-    y = np.clip(np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float) / s, lower / s,
-                upper / s)
+    sb, sl, su = s * np.asarray(b, dtype=float), lower / s, upper / s  # the scaled QP
+    y = np.clip(np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float) / s, sl, su)
     if active_set_steps is None:
         active_set_steps = ACTIVE_SET_STEPS if hessian.corner.shape[0] == 0 else 0
     counts = np.zeros(8, dtype=np.int64)
-    sb, sl, su = s * np.asarray(b, dtype=float), lower / s, upper / s
     status, pg, tol = _mprgp(scaled.band, scaled.border, scaled.corner, sb, sl, su, y, rtol, atol, max_iterations,
                              PRECONDITIONERS[preconditioner], gamma, active_set_steps, WALKING, counts)
     if STATUS[status] == "walking":
