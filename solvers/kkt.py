@@ -9,12 +9,15 @@ block, zero exactly at a KKT point.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
 
 from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.problem import Problem
+
+from .banded import NormalFactor
 
 #: KKT distance (kkt_optimality, in the units of p) below which every solver's status may be
 #: ``converged``. 1e-6 is below what rounding allows on some 200-vertex strands (2.1e-6 at the best
@@ -44,32 +47,89 @@ def gradient_scale(weights: np.ndarray, J: sp.csc_matrix) -> np.ndarray:
 
 
 def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -> np.ndarray:
-    """lam minimizing the scaled Lagrangian gradient on the free variables,
+    """lam minimizing the scaled Lagrangian gradient on the free variables F,
     ||(grad R + J^T lam)_F / sqrt(h_F)||_2 (a feasible p's multipliers), from the normal equations
-    (Js Js^T) lam = -Js r_s with Js = J_F diag(h_F)^-1/2.
-
-    A column of J that fills most rows (the strand multiplier of ``stiffness="strand"``) would make
-    Js Js^T dense: its sparse LU took 90 ms on a 400-vertex strand. Such columns U are kept out of the
-    sparse matrix A = Js' Js'^T and added back by the Woodbury identity,
-    (A + U U^T)^-1 = A^-1 - A^-1 U (I + U^T A^-1 U)^-1 U^T A^-1, with one sparse LU of A.
+    A lam = -J_F (grad R / h)_F with A = J_F diag(h_F)^-1 J_F^T (banded.NormalFactor, banded with
+    the strand multiplier's dense column added back by Woodbury), plus one step of the corrected
+    semi-normal equations: lam += A^-1 (-J_F e_F), e = (grad R + J^T lam) / h. Normal equations
+    square J's condition number; on a 60-vertex element strand with bound variables the
+    multipliers without that correction were ~20% off the least-squares optimum.
+    NaN if A is singular (J_F rank deficient); the caller then keeps its multipliers.
     """
     free = (p > lower) & (p < upper)
-    J = J.tocsc() if isinstance(J, StrandJacobian) else sp.csc_matrix(J)
-    Js = (J @ sp.diags(1.0 / np.sqrt(scale)))[:, free].tocsc()
-    rhs = Js @ ((regularizer_gradient / np.sqrt(scale))[free])
-    rows = Js.shape[0]
-    dense = np.diff(Js.indptr) > max(50, rows // 5)
-    sparse_part, U = Js[:, ~dense], Js[:, dense].toarray()
-    normal = (sparse_part @ sparse_part.T).tocsc() + sp.identity(rows, format="csc") * 1e-14
+    factor = NormalFactor(J, 1.0 / scale, free, shift=1e-14)
+    if not factor.definite:
+        return np.full(J.shape[0], np.nan)
+    lam = np.zeros(J.shape[0])
+    for _ in range(2):  # the solve, then the correction
+        lam += factor.solve(-(J @ np.where(free, (regularizer_gradient + J.T @ lam) / scale, 0.0)))
+    return lam
+
+
+def _constrained_step(J, w, regularizer_gradient, c, free):
+    """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w), d = 0 off
+    F, by the sparse LU of the full system; None if it is singular (J_F rank deficient: more
+    constraints than free directions).
+
+    Not through the Schur complement J_F W_F^-1 J_F^T (banded, ~4x cheaper): at the groom
+    strands' optima the free rest-length columns are ~1e8 times the stiffness columns, cond(J_F)
+    reaches ~4e8, and the Schur complement's Cholesky broke down or lost every digit on most of
+    them. The system is assembled directly in compressed columns (_kkt_system): scipy's bmat took
+    0.56 of the ~1.9 ms this step cost on a 100-vertex strand.
+    """
+    if isinstance(J, StrandJacobian):
+        indptr, indices, data = J.pattern.indptr, J.pattern.indices, J.data
+        row_indptr, row_indices, row_data = J.csr()
+    else:
+        J = sp.csc_matrix(J)
+        indptr, indices, data = J.indptr.astype(np.int64), J.indices.astype(np.int64), J.data
+        rows_first = J.tocsr()
+        row_indptr, row_indices, row_data = (rows_first.indptr.astype(np.int64),
+                                             rows_first.indices.astype(np.int64), rows_first.data)
+    size = int(free.sum())
+    position = np.cumsum(free) - 1  # index of each free variable in d_F
+    n = size + J.shape[0]
+    system = sp.csc_matrix(_kkt_system(indptr, indices, data, row_indptr, row_indices, row_data,
+                                       np.asarray(w, dtype=float), free, position, size), shape=(n, n))
     try:
-        solve = sp.linalg.splu(normal).solve
-    except RuntimeError:  # singular: keep the caller's multipliers
-        return np.full(rows, np.nan)
-    lam = solve(rhs)
-    if U.shape[1]:
-        AU = solve(U)
-        lam -= AU @ np.linalg.solve(np.eye(U.shape[1]) + U.T @ AU, U.T @ lam)
-    return -lam
+        solution = sp.linalg.splu(system).solve(-np.concatenate([regularizer_gradient[free], c]))
+    except RuntimeError:
+        return None
+    d = np.zeros_like(w)
+    d[free] = solution[:size]
+    return d, solution[size:]
+
+
+@numba.njit(cache=True)
+def _kkt_system(indptr, indices, data, row_indptr, row_indices, row_data, w, free, position,
+                size):  # pragma: no cover - compiled
+    """(data, indices, indptr) of [[diag(w_F), J_F^T], [J_F, 0]] in compressed columns, from J's
+    columns (CSC) and rows (CSR)."""
+    rows = row_indptr.size - 1
+    nnz = size
+    for j in range(indptr.size - 1):
+        if free[j]:
+            nnz += 2 * (indptr[j + 1] - indptr[j])
+    out_indptr = np.zeros(size + rows + 1, dtype=np.int64)
+    out_indices = np.empty(nnz, dtype=np.int64)
+    out_data = np.empty(nnz)
+    k = 0
+    for j in range(indptr.size - 1):  # the columns of d_F: w_j, then J's column j below
+        if not free[j]:
+            continue
+        out_indices[k], out_data[k] = position[j], w[j]
+        k += 1
+        for e in range(indptr[j], indptr[j + 1]):
+            out_indices[k], out_data[k] = size + indices[e], data[e]
+            k += 1
+        out_indptr[position[j] + 1] = k
+    for r in range(rows):  # the columns of lam: J's row r, on the free variables
+        for e in range(row_indptr[r], row_indptr[r + 1]):
+            if free[row_indices[e]]:
+                out_indices[k], out_data[k] = position[row_indices[e]], row_data[e]
+                k += 1
+        out_indptr[size + r + 1] = k
+    return out_data, out_indices, out_indptr
 
 
 def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float:
@@ -77,20 +137,20 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
     entry of the equality-constrained SQP step with the regularizer's Hessian
     W = diag(w) on a working set F of free variables,
 
-        [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c],
+        [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c]      (_constrained_step),
 
     where F starts as the variables farther than ``near`` (relative to the box width) from their
     bounds (interior-point solvers stop a hair inside them) and is corrected (at most 10 times) like
     an active-set method: a bound variable whose multiplier (grad R + J^T lam)_j has the wrong sign
     (< 0 at a lower bound, > 0 at an upper one) is released. Any wrong sign left at the end counts
-    too, scaled by h as in ``scaled_projected_gradient``.
+    too, scaled by h as in ``scaled_projected_gradient``. Infinite if the system is singular.
 
     Unlike the scaled projected gradient, this sees directions in which c can be kept by trading
     one parameter against another (the strand multiplier S against the rest shape): there the
     gradient step g / h is tiny, because h is dominated by ||J_{:,j}||^2, while the constrained
     step is not.
     """
-    J = sp.csc_matrix(problem.jacobian(p))
+    J = problem.strand_jacobian(p)
     c, regularizer_gradient = problem.residual(p), problem.objective_gradient(p)
     w, lower, upper = problem.layout.weights, problem.layout.lower, problem.layout.upper
     slack = near * (upper - lower)
@@ -98,16 +158,11 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
     active = (p - lower <= slack) | (upper - p <= slack)
     scale = gradient_scale(w, J)
     for _ in range(10):
-        free = ~active
-        size = int(free.sum())
-        system = sp.bmat([[sp.diags(w[free]), J[:, free].T], [J[:, free], None]], format="csc")
-        try:
-            solution = sp.linalg.splu(system).solve(-np.concatenate([regularizer_gradient[free], c]))
-        except RuntimeError:  # J_F rank deficient: more constraints than free directions
+        solution = _constrained_step(J, w, regularizer_gradient, c, ~active)
+        if solution is None:
             return float("inf")
-        step = np.zeros_like(p)
-        step[free] = solution[:size]
-        gradient = regularizer_gradient + J.T @ solution[size:]  # >= 0 at a lower bound, <= 0 at an upper
+        step, lam = solution
+        gradient = regularizer_gradient + J.T @ lam  # >= 0 at a lower bound, <= 0 at an upper
         # wrong-signed bound multipliers, above rounding (a 1e-3 share of the tolerance in the
         # scaled measure): releasing rounding-level ones only re-solved the same system
         wrong = active & (np.where(at_lower, -gradient, gradient) > 1e-3 * TOLERANCE * scale)
