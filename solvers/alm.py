@@ -4,17 +4,20 @@
 
 Outer loop (augmented Lagrangian, PERMON SMALXE-style accounting):
     L(p, lam) = R(p) + lam^T c(p) + mu/2 |c(p)|^2,
-    after each inner solve lam <- lam + mu c; mu <- 10 mu when |c|_inf did not fall below
-    a quarter of its previous value (the constraint stalls). mu starts at mu0 = 100 (in both the
-    strand-stiffness start and the element solve). From 10, the first inner solve of a 400-vertex
-    strand's start ended at |c|_inf = 10 (worse than p0's 1: the regularizer outweighed the
-    penalty), and 11 more outer iterations followed. Against mu0 = 10, mean Gauss-Newton steps per
-    strand (same statuses and R): groom(40, 100, seed=0) 18.5 -> 12.9, groom(100, 100, seed=5)
-    21.7 -> 15.4, groom(40, 25, seed=0) 16.8 -> 12.7, groom(20, 200, seed=3) 24.3 -> 17.9,
-    groom(20, 400, seed=0) 23.8 -> 18.5, groom(10, 400, seed=1..3) 36.0, 45.4, 32.6 -> 26.2, 21.6,
-    24.6; factorizations 10-40% fewer. Larger is not safer: mu0 = 1000 was better still up to 200
-    vertices, but 3000 sent 400-vertex strands crawling (groom(10, 400, seed=1): 63 steps, 1e4: 85
-    and one max_iterations): Gauss-Newton omits lam^T c'', and the usable range of mu narrows as the
+    after each inner solve lam <- lam + mu c; when |c|_inf did not fall below a quarter of its
+    previous value (the constraint stalls), the equality-constrained SQP step on the free variables
+    is tried first and taken, with its multipliers, if it at least halves |c|_inf (_sqp_step);
+    otherwise mu <- 10 mu. mu starts at ALGENCAN's scale-free value, floored at mu0 = 100
+    (_initial_penalty): mu0 from p0, about ten times R / |c|^2 from the linear start. From p0, mu0 =
+    10 had let the first inner solve of a 400-vertex strand end at |c|_inf = 10 (worse than p0's 1:
+    the regularizer outweighed the penalty), and 11 more outer iterations followed. Against mu0 = 10,
+    mean Gauss-Newton steps per strand (same statuses and R, measured with the former
+    strand-stiffness start, which began from p0): groom(40, 100, seed=0) 18.5 -> 12.9, groom(100,
+    100, seed=5) 21.7 -> 15.4, groom(40, 25, seed=0) 16.8 -> 12.7, groom(20, 200, seed=3) 24.3 ->
+    17.9, groom(20, 400, seed=0) 23.8 -> 18.5, groom(10, 400, seed=1..3) 36.0, 45.4, 32.6 -> 26.2,
+    21.6, 24.6. Larger is not safer from p0: 1000 was better still up to 200 vertices, but 3000
+    sent 400-vertex strands crawling (groom(10, 400, seed=1): 63 steps, 1e4: 85 and one
+    max_iterations): Gauss-Newton omits lam^T c'', and the usable range of mu narrows as the
     bending modes soften with n.
 Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu J^T J (damped by
     1e-13 of its diagonal, see _Model.hessian); each step solves the box QP
@@ -22,7 +25,8 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     Cholesky and warm-started with the previous step's active bounds, then a nonmonotone Armijo
     backtracking line search on L (memory 5; 23% fewer steps than monotone on 100-vertex groom
     strands) keeps p feasible.
-Start: per-element stiffness starts from the one-multiplier-per-strand solution (_strand_mode_start).
+Start: per-element stiffness starts from the least rest-shape change that balances gravity,
+    stiffened where it leaves the boxes (_linear_start), with least-squares multipliers.
     The first inner solve is loose (omega0 = 1): with lam = 0 it lands far from feasible anyway, and
     converging it tightly wasted ~20% of all Gauss-Newton steps. From p0, though, the scaled
     projected gradient is often below omega already (1e-6 on 400-vertex groom strands); an outer
@@ -50,7 +54,12 @@ Stall: the rounding estimate of L can be too optimistic: on a 400-vertex groom s
     (strand 33 of groom(40, 400, seed=0): 600 steps). STALL accepted steps in a row that lower L by
     less than its rounding end the inner loop; on a feasible p the KKT distance then decides
     convergence (that strand: 17 Gauss-Newton steps, KKT distance 6e-12).
-Infeasible: once mu has grown 10^4-fold, the best box-constrained Gauss-Newton step for |c|^2 alone
+Crawl: an inner solve ends after INNER_STEPS Gauss-Newton steps, and the outer loop decides (the SQP
+    step, lam, mu). Strand 0 of groom(6, 400, seed=13) sat at |c|_inf = 2e-5 for 480 accepted steps
+    of one inner solve (510 in all); with the cap of 30 it takes 71 (with 20: 45, but strand 23 of
+    groom(30, 100, seed=4) with curvature_budget 0.2, infeasible, then ran into max_gauss_newton:
+    the infeasibility test needs inner solves that reach the stationary point of |c|).
+Infeasible: once mu has reached 10^4 mu0, the best box-constrained Gauss-Newton step for |c|^2 alone
     reduces |c| by less than 1%: p is a stationary point of the constraint violation inside the box.
     The message names the bounds that bind (the blocks and vertices whose relaxation would reduce
     |c|), so a user knows what to relax.
@@ -66,18 +75,18 @@ from sagfree.formulation.problem import Problem
 
 from .banded import gram
 from .kkt import TOLERANCE as KKT_TOLERANCE
-from .kkt import (column_norms, gradient_scale, kkt_optimality, least_squares_multipliers,
-                  scaled_projected_gradient)
+from .kkt import (column_norms, constrained_step, gradient_scale, kkt_optimality,
+                  least_squares_multipliers, scaled_projected_gradient)
 from .mprgp import solve_box_qp
-from .result import Result, bare_result, make_result
+from .result import Result, make_result
 
 ARMIJO = 1e-4
 ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
 DAMPING = (1e-13, 1e-11, 1e-9)  # relative Levenberg-Marquardt damping, escalated on breakdown
 NONMONOTONE = 5  # Grippo-Lampariello-Lucidi memory of the line search
 STALL = 3  # accepted Gauss-Newton steps in a row that lower L by less than its rounding end the inner loop
-START_GAUSS_NEWTON = 40  # cap of the strand-stiffness start (_strand_mode_start)
-START_TOL = 1e-4  # |c|_inf at which the strand-stiffness start stops (_strand_mode_start)
+INNER_STEPS = 30  # Gauss-Newton steps per inner solve (module docstring, Crawl)
+SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
 MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
 
 
@@ -114,38 +123,34 @@ class _Model:
 def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6, max_outer: int = 60,
               max_gauss_newton: int = 600, mu0: float = 100.0, mu_growth: float = 10.0,
               omega0: float = 1.0, preconditioner: str = "cholesky", qp_rtol: float = 1e-10,
-              start: str = "auto", p_start=None, confirm: bool = True, measure: bool = True) -> Result:
+              start: str = "auto", p_start=None) -> Result:
     """Solve ``problem`` with our augmented Lagrangian solver; see the module docstring.
 
     tol: |c|_inf target (unit-free, relative to each DOF's weight). optimality_tol: projected gradient
     of the Lagrangian. preconditioner: "cholesky" (active-set Cholesky), "jacobi" or "none".
-    start: "auto" starts per-element stiffness from the strand-stiffness solution (see
-    _strand_mode_start), "p0" from p0; p_start overrides both. confirm: check convergence with the KKT
-    distance of the kkt module (a sparse LU, ~3 ms on a 100-vertex strand; the strand-stiffness
-    start skips it). measure: fill the Result's summaries and stability (make_result); without it
-    only p, status, message, iterations, time and history are set (the strand-stiffness start, whose
-    Result is discarded, skips ~3 ms of a 100-vertex groom strand's ~45 ms this way).
+    start: "auto" starts per-element stiffness from _linear_start, "p0" from p0; p_start overrides
+    both.
     """
     clock = time.perf_counter()
     history: list[float] = []
     lower, upper = problem.layout.lower, problem.layout.upper
     model = _Model(problem)
     counts = dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, active_set=0, interior=0,
-                  factorizations=0, factored_rows=0, line_search=0, tightened=0)
+                  factorizations=0, factored_rows=0, line_search=0, sqp=0, tightened=0)
     if p_start is None:
         p_start = problem.p0
         if start == "auto" and problem.layout.stiffness == "element" and any(
                 b in problem.blocks for b in ("stretch_stiffness", "bend_stiffness", "twist_stiffness")):
-            p_start, history = _strand_mode_start(problem, counts, mu0=mu0, tol=max(tol, START_TOL),
-                                                  optimality_tol=optimality_tol, preconditioner=preconditioner,
-                                                  qp_rtol=qp_rtol)
+            linear = _linear_start(problem)
+            if linear is not None:
+                p_start, history = linear, [float(np.abs(problem.residual(problem.p0)).max(initial=0.0))]
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
-    mu, omega = mu0, omega0
     target = optimality_tol  # inner target; tightened when the KKT distance disagrees
     c, J = problem.residual(p), problem.strand_jacobian(p)
+    mu, omega = _initial_penalty(mu0, problem.objective(p), c), omega0
     scale = gradient_scale(model.w, J)
     lam = np.zeros(int(problem.free.sum()))
-    if history:  # started from the strand solution: its least-squares multipliers (_strand_mode_start)
+    if history:  # started from the linear start: its least-squares multipliers (_linear_start)
         estimate = least_squares_multipliers(model.w * (p - model.p0), J, scale, p, lower, upper)
         lam = estimate if np.all(np.isfinite(estimate)) else lam
     history = history + [float(np.abs(c).max(initial=0.0))]
@@ -153,8 +158,7 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
     at_lower, at_upper = p <= lower, p >= upper
 
     def finish(status, message):
-        build = make_result if measure else bare_result
-        return build(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
+        return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
 
     while counts["outer"] < max_outer:
         counts["outer"] += 1
@@ -166,6 +170,8 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
             gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
             if scaled_projected_gradient(p, gradient, scale, lower, upper) <= omega:
                 break
+            if counts["gauss_newton"] - steps_before >= INNER_STEPS:
+                break  # a crawling inner solve: let the outer loop (SQP step or mu) decide
             if counts["gauss_newton"] >= max_gauss_newton:
                 return finish("max_iterations", f"stopped after {max_gauss_newton} Gauss-Newton steps "
                               f"with |c|_inf = {history[-1]:.3g}; raise max_gauss_newton")
@@ -231,21 +237,29 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                 lam, optimality = estimate, kkt
         # a stalled inner loop on a feasible p: only the KKT distance can tell (below)
         converged = violation <= tol and (optimality <= target or stalled >= STALL)
-        evidence = (f"scaled projected gradient {optimality:.2e} <= {target:g}" if optimality <= target else
-                    f"L stalled at its rounding (scaled projected gradient {optimality:.2e})")
-        if converged and confirm:
+        if converged:
             # the scaled gradient can be small in a flat valley away from the optimum: confirm with
             # the KKT distance of the kkt module, and tighten the inner target if it disagrees
             distance = kkt_optimality(problem, p)
             converged = distance <= KKT_TOLERANCE
-            evidence = f"KKT distance {distance:.2e} <= {KKT_TOLERANCE:g}"
             if not converged:
                 counts["tightened"] += 1
                 target = max(1e-3 * target, MIN_TARGET)
         if converged:
-            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and {evidence} after "
+            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance {distance:.2e} <= "
+                          f"{KKT_TOLERANCE:g} after "
                           f"{counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
         if violation > tol and violation > 0.25 * previous_violation:
+            # the constraint stalls: before growing mu, try the constrained step (SQP)
+            sqp = _sqp_step(problem, model, p, J, SQP_DECREASE * violation)
+            if sqp is not None:
+                counts["sqp"] += 1
+                p, c, lam = sqp
+                J = problem.strand_jacobian(p)
+                scale = gradient_scale(model.w, J)
+                history.append(float(np.abs(c).max(initial=0.0)))
+                previous_violation = violation
+                continue
             mu *= mu_growth
             if mu >= 1e4 * mu0:
                 verdict = _infeasibility(problem, p, c, J, lower, upper)
@@ -257,110 +271,123 @@ def solve_alm(problem: Problem, tol: float = 1e-8, optimality_tol: float = 1e-6,
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer")
 
 
-def _strand_mode_start(problem: Problem, counts: dict, **options) -> tuple[np.ndarray, list[float]]:
-    """A feasible start for per-element stiffness, from the solution with one stiffness multiplier S
-    for the whole strand (supplement section V).
+def _sqp_step(problem: Problem, model: _Model, p, J, bound: float):
+    """(p, c, lam) after the equality-constrained SQP step from p, or None if it leaves
+    |c|_inf > bound.
 
-    Element mode is bilinear in stiffness and rest shape, and from p0 (where stiffness has no effect
-    on c) Gauss-Newton crawls. The strand solution balances gravity; its forces depend on each
-    element only through the products y = S (kbar - kappa*) (bend), z = S (mbar - m*) (twist) and
-    S * strain (stretch). Keeping those products keeps c: each vertex gets the least multiplier its
-    boxes allow, k_i = min(S, max(1, |y_i| / b_i, |z_i| / b_m,i)), with kbar - kappa* = y / k_i and
-    mbar - m* = z / k_i (k_i = S gives back the strand's own rest shape, which is in the box); each
-    edge keeps multiplier 1 and takes the strain S * strain through its rest length, or, where that
-    rest length would leave its box, keeps the strand's edge (multiplier S, its rest length). So only
-    the root, where the boxes bind, starts stiffened; the tail starts at its specified stiffness.
-    (Clipping the root edge's rest length instead left |c|_inf = 25 on some groom strands; what
-    remains, up to ~4e-2, is the 4d curvature's separate terms per frame, which the products do not
-    keep where the two frames' curvatures differ.) The element solve's multipliers start as the
-    least-squares multipliers at this point (kkt.least_squares_multipliers): from lam = 0 it first
-    walked away from feasibility. On groom(30, 100) that took the Gauss-Newton steps per strand from
-    26 to 16.5 and the factorizations from 136 to 64; on groom(10, 400) from 44 to 32 and 412 to 168.
-    (The strand solve's own multipliers, the other candidate, were as good at 100 vertices but sent
-    3 of 10 400-vertex strands to max_iterations; they were then inflated, see the module docstring,
-    Start.) The element solve starts again from mu0: inheriting the strand solve's final penalty
-    saved ~10% of the Gauss-Newton steps, but sent strand 27 of groom(40, 200, seed=0) crawling
-    along a flat valley at large mu (497 steps against 19; strand 2200 of groom(10000, 100, seed=0)
-    580 steps into max_gauss_newton, at ~1% per step, against 14).
-
-    The strand solve stops at |c|_inf <= START_TOL: the spread above leaves up to ~4e-2 anyway, and
-    the last decades cost the strand solve 4-6 Gauss-Newton steps (at mu up to 1e4) that the element
-    solve did not need. Measured against tol = 1e-8 (same statuses, R to 7 digits), mean
-    Gauss-Newton steps per strand: groom(150, 100, seed=2) 25.3 -> 21.8, groom(20, 200, seed=3)
-    27.9 -> 24.0, groom(10, 400, seed=2) 31.7 -> 30.4, groom(40, 50, seed=4) 25.6 -> 21.4. (At 1e-3
-    one strand of groom(10, 400, seed=0) needed 200 more steps in element mode.)
-    It is capped at START_GAUSS_NEWTON steps (it usually needs 7-20; a rare slow one still gives a
-    good start); its iterations count towards ``counts`` and its |c|_inf history is
-    returned with the start; p0 (and no history) if it failed or is infeasible."""
-    bounds, weights = dict(problem.options["bounds"] or {}), dict(problem.options["weights"] or {})
-    stiffness_ix = np.concatenate([ix for b, ix in problem.blocks.items() if b.endswith("_stiffness")])
-    bounds = {b: v for b, v in bounds.items() if not b.endswith("_stiffness")}
-    bounds["strand_stiffness"] = (problem.layout.lower[stiffness_ix].max(),
-                                  problem.layout.upper[stiffness_ix].min())
-    weights = {b: v for b, v in weights.items() if not b.endswith("_stiffness")}
-    if bounds["strand_stiffness"][0] > bounds["strand_stiffness"][1]:
-        return problem.p0, []  # no common multiplier fits every element's box
-    strand_problem = problem.with_options(stiffness="strand", bounds=bounds, weights=weights)
-    result = solve_alm(strand_problem, start="p0", max_gauss_newton=START_GAUSS_NEWTON, confirm=False,
-                       measure=False, **options)
-    for key, value in result.iterations.items():
-        counts[key] += value
-    if result.status not in ("converged", "max_iterations"):
-        return problem.p0, []
-    return _spread_strand_solution(problem, strand_problem, result.p), result.history
+    The step d minimizes the regularizer's quadratic model on the linearized constraint over the
+    free variables F (strictly inside their boxes; kkt.constrained_step, one sparse LU):
+        [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c],
+    and lam, the multipliers of that step, replace the first-order update lam + mu c. solve_alm
+    tries it where it would otherwise grow mu because |c|_inf stalled. Near the solution the
+    first-order update converges slowly along the soft bending modes, and the inner solves it
+    forces at large mu crawl: strand 0 of groom(10, 400, seed=2) reached |c|_inf = 8.2e-7 at mu =
+    1e6 and then took 590 Gauss-Newton steps of ~2e-7 (each lowering L by ~3e-10) into
+    max_gauss_newton. With this step: 3 Gauss-Newton and 2 SQP steps (|c|_inf 7.4e-5 -> 1.9e-5
+    -> 3.3e-10; the first only quartered it, as the stiffness x rest-shape products curve c).
+    """
+    free = (p > problem.layout.lower) & (p < problem.layout.upper)
+    step = constrained_step(J, model.w, model.w * (p - model.p0), problem.residual(p), free)
+    if step is None:
+        return None
+    trial = np.clip(p + step[0], problem.layout.lower, problem.layout.upper)
+    c_trial = problem.residual(trial)
+    if not np.abs(c_trial).max(initial=0.0) <= bound:  # also rejects NaN
+        return None
+    return trial, c_trial, step[1]
 
 
-def _spread_strand_solution(problem: Problem, strand_problem: Problem, strand_p) -> np.ndarray:
-    """Element parameters with the same forces as the strand solution (see _strand_mode_start)."""
+def _initial_penalty(mu0: float, objective: float, c: np.ndarray) -> float:
+    """mu at the start: ALGENCAN's scale-free choice (Birgin & Martinez, "Practical Augmented
+    Lagrangian Methods for Constrained Optimization", SIAM 2014), floored at mu0,
+
+        mu = max(mu0, min(10 max(1, |R(p)|) / max(1, |c(p)|^2 / 2), 1e8)),
+
+    so that the penalty term weighs about ten times the regularizer. From p0 (R = 0) it is mu0. From
+    the linear start, R is 1 to 1e4 (the root's stiffening) at |c|_inf ~1e-3: with mu0 = 100 there
+    the first inner solve gave up feasibility for R (|c|_inf from 1e-2 back up to ~1 for 20
+    Gauss-Newton steps on 400-vertex strands: 41, 23, 32, 41 steps on groom(4, 400, seed=1) from
+    the former strand start, 47, 39, 47, 56 from the linear start; 6, 6, 9, 24 with this penalty).
+    """
+    return max(mu0, min(10.0 * max(1.0, abs(objective)) / max(1.0, 0.5 * float(c @ c)), 1e8))
+
+
+def _linear_start(problem: Problem) -> np.ndarray | None:
+    """A nearly feasible start for per-element stiffness: the least rest-shape change that balances
+    gravity, spread into the boxes by stiffening where it does not fit (None if the linear system is
+    singular; the solve then starts from p0).
+
+    At p0 the rest shape is the groomed shape and the stiffness multipliers are 1; c is linear in the
+    rest curvatures and twists there, and the rest lengths move by the strain that holds gravity
+    (~1e-8). So one equality-constrained least-squares step on the rest blocks R,
+
+        minimize sum_R w_j d_j^2   s.t.   c(p0) + J_R d = 0     (kkt.constrained_step, one sparse LU),
+
+    nearly balances gravity with no box. A vertex's forces depend on its element only through the
+    products y = k (kbar - kappa*) (bend), z = k (mbar - m*) (twist) and k * strain (stretch), and at
+    k = 1 these are the step d. Keeping them keeps c (_spread_rest_change): each vertex takes the least
+    multiplier its boxes allow, k_i = max(1, |y_i| / b_i, |z_i| / b_m,i), so only the root, where the
+    boxes bind, starts stiffened.
+
+    This replaced a start from the solution with one stiffness multiplier S for the whole strand
+    (supplement section V; 7.8 of a 100-vertex groom strand's 13.6 Gauss-Newton steps, ~9.7 of its
+    ~21 ms): the linear step costs one factorization and lands closer, at |c|_inf ~1e-4 to 1e-3 (the
+    spread strand solution: up to 0.7) with R within ~1% of the optimum (up to 5% above it).
+    Gauss-Newton steps per strand, strand start -> this one, with the initial penalty of solve_alm
+    in both: groom(100, 100, seed=0) 11.9 -> 7.2, groom(40, 50, seed=4) 13.4 -> 6.5,
+    groom(20, 200, seed=3) 13.9 -> 9.2, groom(10, 400, seed=1) 15.1 -> 9.2; factorizations 53 -> 19,
+    49 -> 16, 76 -> 26, 102 -> 30; same statuses and R (to 1e-7 relative).
+    """
     layout, blocks = problem.layout, problem.blocks
-    S = float(strand_p[strand_problem.blocks["strand_stiffness"]][0])
-    p = problem.p0
+    rest = np.zeros(problem.n_parameters, dtype=bool)
+    for block in ("rest_length", "rest_curvature", "rest_twist"):
+        if block in blocks:
+            rest[blocks[block]] = True
+    step = constrained_step(problem.strand_jacobian(layout.p0), layout.weights, np.zeros(problem.n_parameters),
+                            problem.residual(layout.p0), rest, method="schur")
+    if step is None or not np.all(np.isfinite(step[0])):
+        return None
+    return _spread_rest_change(problem, step[0])
 
-    def excess(block):
-        """(moment-like product, box half-width) of a rest block, per entry."""
-        ix = blocks[block]
-        change = S * (strand_p[strand_problem.blocks[block]] - layout.p0[ix])
-        half = np.minimum(layout.upper[ix] - layout.p0[ix], layout.p0[ix] - layout.lower[ix])
-        return change, np.maximum(half, 1e-300)
 
+def _spread_rest_change(problem: Problem, change: np.ndarray) -> np.ndarray:
+    """Element parameters with the forces of p0 + change at unit stiffness: the least stiffness
+    multipliers that bring each element's rest change into its box (see _linear_start)."""
+    layout, blocks = problem.layout, problem.blocks
+    p0, lower, upper = layout.p0, layout.lower, layout.upper
+    half = np.maximum(np.minimum(upper - p0, p0 - lower), 1e-300)  # box half-widths around p0
+    p = p0.copy()
     n_inner = problem.n_vertices - 2
     need = {"bend_stiffness": np.ones(n_inner), "twist_stiffness": np.ones(n_inner)}
-    products = {}
     for block, target in (("rest_curvature", "bend_stiffness"), ("rest_twist", "twist_stiffness")):
         if block in blocks:
-            change, half = excess(block)
-            products[block] = change
-            per_vertex = (np.abs(change) / half).reshape(n_inner, -1).max(axis=1)
-            # at most S: with S itself the strand's own rest shape, which is in the box, returns
-            need[target] = np.minimum(np.maximum(need[target], per_vertex), max(S, 1.0))
-    coupled = "twist_stiffness" not in blocks
+            ix = blocks[block]
+            need[target] = np.maximum(1.0, (np.abs(change[ix]) / half[ix]).reshape(n_inner, -1).max(axis=1))
+    coupled = "twist_stiffness" not in blocks  # the twist then follows the bend multiplier
     bend = np.maximum(need["bend_stiffness"], need["twist_stiffness"]) if coupled else need["bend_stiffness"]
-    twist = bend if coupled else need["twist_stiffness"]
-    multipliers = {"bend_stiffness": bend, "twist_stiffness": twist,
-                   "stretch_stiffness": np.ones(problem.n_vertices - 1)}
-    for block, k in multipliers.items():
+    for block, k in (("bend_stiffness", bend), ("twist_stiffness", need["twist_stiffness"])):
         if block in blocks:
-            p[blocks[block]] = np.clip(k, layout.lower[blocks[block]], layout.upper[blocks[block]])
-    # the multipliers actually in force (a block not optimized keeps its specified value 1; a
-    # coupled twist follows the bend multiplier)
+            p[blocks[block]] = np.clip(k, lower[blocks[block]], upper[blocks[block]])
+    # the multipliers in force (a block not optimized keeps its specified value 1)
     k_bend = p[blocks["bend_stiffness"]] if "bend_stiffness" in blocks else np.ones(n_inner)
-    k_twist = p[blocks["twist_stiffness"]] if not coupled else k_bend
+    k_twist = k_bend if coupled else p[blocks["twist_stiffness"]]
     if "rest_curvature" in blocks:
         ix = blocks["rest_curvature"]
-        p[ix] = layout.p0[ix] + products["rest_curvature"] / np.repeat(k_bend, 2)
+        p[ix] = p0[ix] + change[ix] / np.repeat(k_bend, ix.size // n_inner)
     if "rest_twist" in blocks:
         ix = blocks["rest_twist"]
-        p[ix] = layout.p0[ix] + products["rest_twist"] / k_twist
-    if "rest_length" in blocks:  # strain(u) = -u / (1 + u) at q*; keep S * strain with multiplier 1
+        p[ix] = p0[ix] + change[ix] / k_twist
+    if "rest_length" in blocks:  # strain(u) = -u / (1 + u) at q*; keep k * strain
         ix = blocks["rest_length"]
-        u = strand_p[strand_problem.blocks["rest_length"]]
-        strain = S * (-u / (1.0 + u))
+        u = change[ix]
+        k = np.ones(ix.size)
+        if "stretch_stiffness" in blocks:
+            k = np.clip(np.maximum(1.0, np.abs(u) / half[ix]), lower[blocks["stretch_stiffness"]],
+                        upper[blocks["stretch_stiffness"]])
+            p[blocks["stretch_stiffness"]] = k
+        strain = -u / (1.0 + u) / k
         p[ix] = -strain / (1.0 + strain)
-        if "stretch_stiffness" in blocks:  # where that leaves the box: the strand's own edge (S, u)
-            outside = (p[ix] < layout.lower[ix]) | (p[ix] > layout.upper[ix])
-            p[ix[outside]] = u[outside]
-            p[blocks["stretch_stiffness"][outside]] = S
-    return np.clip(p, layout.lower, layout.upper)
+    return np.clip(p, lower, upper)
 
 
 def _infeasibility(problem: Problem, p, c, J, lower, upper) -> str | None:

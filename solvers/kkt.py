@@ -66,17 +66,24 @@ def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -
     return lam
 
 
-def _constrained_step(J, w, regularizer_gradient, c, free):
+def constrained_step(J, w, regularizer_gradient, c, free, method: str = "lu"):
     """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w), d = 0 off
-    F, by the sparse LU of the full system; None if it is singular (J_F rank deficient: more
-    constraints than free directions).
+    F; None if the system is singular (J_F rank deficient: more constraints than free directions).
 
-    Not through the Schur complement J_F W_F^-1 J_F^T (banded, ~4x cheaper): at the groom
-    strands' optima the free rest-length columns are ~1e8 times the stiffness columns, cond(J_F)
-    reaches ~4e8, and the Schur complement's Cholesky broke down or lost every digit on most of
-    them. The system is assembled directly in compressed columns (_kkt_system): scipy's bmat took
-    0.56 of the ~1.9 ms this step cost on a 100-vertex strand.
+    method "lu": the sparse LU of the full system, assembled directly in compressed columns
+    (_kkt_system; scipy's bmat took 0.56 of the ~1.9 ms this cost on a 100-vertex strand).
+    method "schur" (needs w_F > 0): the Schur complement A = J_F W_F^-1 J_F^T, which is banded
+    (banded.NormalFactor, ~0.2 ms): A lam = c - J_F W_F^-1 grad R_F, d_F = -W_F^-1 (grad R + J^T
+    lam)_F, then one step of iterative refinement on the full system. It squares cond(J_F): at the
+    groom strands' optima, where the free rest-length columns are ~1e8 times the stiffness
+    columns and cond(J_F) reaches ~4e8, its Cholesky broke down or lost every digit on most
+    strands, so the KKT measure uses "lu". On the rest blocks at p0 (alm's linear start) the two
+    steps differed by at most 6e-5 of the largest entry over 65 groom strands of 25-400 vertices.
     """
+    if free.sum() < J.shape[0]:  # J_F cannot have full row rank
+        return None
+    if method == "schur":
+        return _schur_step(J, w, regularizer_gradient, c, free)
     if isinstance(J, StrandJacobian):
         indptr, indices, data = J.pattern.indptr, J.pattern.indices, J.data
         row_indptr, row_indices, row_data = J.csr()
@@ -98,6 +105,25 @@ def _constrained_step(J, w, regularizer_gradient, c, free):
     d = np.zeros_like(w)
     d[free] = solution[:size]
     return d, solution[size:]
+
+
+def _schur_step(J, w, regularizer_gradient, c, free):
+    """constrained_step by the banded Schur complement (method "schur")."""
+    if not np.all(w[free] > 0):
+        return None
+    inverse_w = np.where(free, 1.0 / np.where(free, w, 1.0), 0.0)
+    factor = NormalFactor(J, inverse_w, free)
+    if not factor.definite:
+        return None
+    d, lam = np.zeros_like(w), np.zeros(J.shape[0])
+    r1, r2 = -np.where(free, regularizer_gradient, 0.0), -c
+    for _ in range(2):  # the solve, then one refinement with the residual of the full system
+        d_lam = factor.solve(J @ (inverse_w * r1) - r2)
+        d += inverse_w * (r1 - J.T @ d_lam)
+        lam += d_lam
+        r1 = -np.where(free, regularizer_gradient + w * d + J.T @ lam, 0.0)
+        r2 = -c - J @ d
+    return d, lam
 
 
 @numba.njit(cache=True)
@@ -137,13 +163,16 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
     entry of the equality-constrained SQP step with the regularizer's Hessian
     W = diag(w) on a working set F of free variables,
 
-        [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c]      (_constrained_step),
+        [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c]      (constrained_step),
 
     where F starts as the variables farther than ``near`` (relative to the box width) from their
     bounds (interior-point solvers stop a hair inside them) and is corrected (at most 10 times) like
     an active-set method: a bound variable whose multiplier (grad R + J^T lam)_j has the wrong sign
     (< 0 at a lower bound, > 0 at an upper one) is released. Any wrong sign left at the end counts
-    too, scaled by h as in ``scaled_projected_gradient``. Infinite if the system is singular.
+    too, scaled by h as in ``scaled_projected_gradient``. If the system is singular (fewer free
+    variables than constraints: strand 1 of groom(6, 400, seed=13) had 1591 for 1592 at its optimum,
+    with 579 within ``near`` of a bound but not on it), F becomes the variables not on a bound;
+    infinite if it is singular still.
 
     Unlike the scaled projected gradient, this sees directions in which c can be kept by trading
     one parameter against another (the strand multiplier S against the rest shape): there the
@@ -158,9 +187,13 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
     active = (p - lower <= slack) | (upper - p <= slack)
     scale = gradient_scale(w, J)
     for _ in range(10):
-        solution = _constrained_step(J, w, regularizer_gradient, c, ~active)
-        if solution is None:
-            return float("inf")
+        solution = constrained_step(J, w, regularizer_gradient, c, ~active)
+        if solution is None:  # too few free directions: free the variables near but not on a bound
+            loose = active & (p > lower) & (p < upper)
+            if not loose.any():
+                return float("inf")
+            active &= ~loose
+            continue
         step, lam = solution
         gradient = regularizer_gradient + J.T @ lam  # >= 0 at a lower bound, <= 0 at an upper
         # wrong-signed bound multipliers, above rounding (a 1e-3 share of the tolerance in the

@@ -116,15 +116,6 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
                   time, eigenvalue, stable, list(history or []), problem.physical(p))
 
 
-def bare_result(problem: Problem, p: np.ndarray, solver: str, status: str, message: str,
-                iterations: dict[str, int], time: float, history: list[float] | None = None) -> Result:
-    """A Result with p, status, message, iterations, time and history only (NaN / empty elsewhere),
-    for solves whose Result is an intermediate (make_result measures everything)."""
-    nan = float("nan")
-    return Result(solver, np.asarray(p, dtype=float).copy(), status, message, dict(iterations), nan, nan, nan,
-                  {}, {}, time, nan, False, list(history or []))
-
-
 def status_counts(results: list[Result]) -> dict[str, int]:
     """Strands per status, in STATUSES order, statuses with no strand left out."""
     return {s: n for s in STATUSES if (n := sum(r.status == s for r in results))}

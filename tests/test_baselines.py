@@ -30,6 +30,20 @@ def dense_kkt_step(problem, p):
     return max(np.abs(solution[:F.size]).max(), (wrong / h).max())
 
 
+def test_kkt_measure_frees_near_bound_variables_when_too_few_are_free():
+    """At this strand's optimum, the variables farther than ``near`` from their bounds are one fewer
+    than the constraints: the KKT system on them is singular, and the measure was infinite (so the
+    solver ran into max_outer). It then solves on the variables not on a bound."""
+    problem = sagfree.Problem(sagfree.scenes.groom(6, 400, seed=13)[1])
+    result = sagfree.solve(problem)
+    assert result.status == "converged", result.message
+    layout = problem.layout
+    slack = 1e-6 * (layout.upper - layout.lower)
+    near = (result.p - layout.lower <= slack) | (layout.upper - result.p <= slack)
+    assert (~near).sum() < problem.residual(result.p).size
+    assert kkt_optimality(problem, result.p) <= KKT_TOLERANCE
+
+
 def test_symbolic_nlp_is_the_problem_constraint():
     problem = sagfree.Problem(sagfree.scenes.helix(n=20))
     nlp = SymbolicNLP.for_problem(problem)

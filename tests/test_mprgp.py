@@ -191,7 +191,7 @@ def test_interior_point_matches_an_exact_solution(seed, border):
 
 
 def test_a_walking_qp_goes_to_the_interior_point_method(monkeypatch):
-    """The second strand-stiffness Gauss-Newton QP of strand 6 of groom(10, 400, seed=1) moves its
+    """The second Gauss-Newton QP of strand 6 of groom(10, 400, seed=1) in strand mode moves its
     binding rest-curvature bound from vertex 1 to vertex 142 one proportioning step at a time (mprgp
     module docstring): MPRGP alone needs ~280 factorizations, with the fallback a fraction of them,
     to the same KKT point."""
@@ -208,7 +208,7 @@ def test_a_walking_qp_goes_to_the_interior_point_method(monkeypatch):
 
     monkeypatch.setattr(alm, "solve_box_qp", capture)
     with pytest.raises(Captured):
-        sagfree.solve(sagfree.Problem(sagfree.scenes.groom(10, 400, seed=1)[6]))
+        sagfree.solve(sagfree.Problem(sagfree.scenes.groom(10, 400, seed=1)[6], stiffness="strand"))
     H, b, lower, upper, options = captured[1]
     assert H.corner.shape == (1, 1)  # the strand multiplier's border
     fallback = solve_box_qp(H, b, lower, upper, **options)
