@@ -29,7 +29,7 @@ def summary(results) -> dict:
     statuses = {s: sum(r.status == s for r in results) for s in ("converged", "infeasible",
                                                                  "max_iterations", "failed")}
     keys = ("outer", "gauss_newton", "cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
-            "factored_rows", "tightened")
+            "factored_rows", "sqp", "tightened")
     counts = {k: np.array([r.iterations.get(k, 0) for r in results]) for k in keys}
     return dict(statuses=statuses, counts=counts, solve_time=np.array([r.time for r in results]))
 

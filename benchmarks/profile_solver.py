@@ -4,7 +4,7 @@
 
 1. One process, the strands one after another, with timers around the parts of ``asc`` (each
    part's time includes what it calls, so nested rows overlap: the strand-mode start contains its
-   own QPs, Jacobians and residuals): share of the total;
+   own residuals): share of the total;
 2. the same batch on ``jobs`` worker processes: wall time against the one-process time divided by
    the jobs; the difference is process start-up, serialization and imbalance.
 """
@@ -19,13 +19,14 @@ import sagfree.solvers.alm as alm
 from sagfree.formulation.problem import Problem
 
 PARTS = [
-    (alm, "_strand_mode_start", "strand-mode start (nested: its QPs, Jacobians, ...)"),
+    (alm, "_linear_start", "linear start (one banded least-squares step)"),
     (alm, "solve_box_qp", "MPRGP QPs with the active-set Cholesky"),
     (Problem, "strand_jacobian", "Jacobian dc/dp (compiled stencils + assembly)"),
     (alm, "gram", "Gauss-Newton Hessian J^T J (banded)"),
     (Problem, "residual", "residual c(p)"),
     (alm, "make_result", "Result: summaries and stability"),
     (alm, "kkt_optimality", "KKT confirmation (sparse LU)"),
+    (alm, "_sqp_step", "SQP steps where the constraint stalls (sparse LU)"),
     (Problem, "__init__", "Problem construction"),
 ]
 

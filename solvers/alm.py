@@ -276,7 +276,7 @@ def _sqp_step(problem: Problem, model: _Model, p, J, bound: float):
     |c|_inf > bound.
 
     The step d minimizes the regularizer's quadratic model on the linearized constraint over the
-    free variables F (strictly inside their boxes; kkt.constrained_step, one sparse LU):
+    free variables F (strictly inside their boxes; kkt.constrained_step, one band LU):
         [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c],
     and lam, the multipliers of that step, replace the first-order update lam + mu c. solve_alm
     tries it where it would otherwise grow mu because |c|_inf stalled. Near the solution the
@@ -321,7 +321,7 @@ def _linear_start(problem: Problem) -> np.ndarray | None:
     rest curvatures and twists there, and the rest lengths move by the strain that holds gravity
     (~1e-8). So one equality-constrained least-squares step on the rest blocks R,
 
-        minimize sum_R w_j d_j^2   s.t.   c(p0) + J_R d = 0     (kkt.constrained_step, one sparse LU),
+        minimize sum_R w_j d_j^2   s.t.   c(p0) + J_R d = 0     (kkt.constrained_step, one band LU),
 
     nearly balances gravity with no box. A vertex's forces depend on its element only through the
     products y = k (kbar - kappa*) (bend), z = k (mbar - m*) (twist) and k * strain (stretch), and at
@@ -344,7 +344,7 @@ def _linear_start(problem: Problem) -> np.ndarray | None:
         if block in blocks:
             rest[blocks[block]] = True
     step = constrained_step(problem.strand_jacobian(layout.p0), layout.weights, np.zeros(problem.n_parameters),
-                            problem.residual(layout.p0), rest, method="schur")
+                            problem.residual(layout.p0), rest)
     if step is None or not np.all(np.isfinite(step[0])):
         return None
     return _spread_rest_change(problem, step[0])

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+import scipy.linalg.lapack
 import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
 
@@ -66,64 +67,110 @@ def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -
     return lam
 
 
-def constrained_step(J, w, regularizer_gradient, c, free, method: str = "lu"):
+def constrained_step(J, w, regularizer_gradient, c, free):
     """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w), d = 0 off
     F; None if the system is singular (J_F rank deficient: more constraints than free directions).
 
-    method "lu": the sparse LU of the full system, assembled directly in compressed columns
-    (_kkt_system; scipy's bmat took 0.56 of the ~1.9 ms this cost on a 100-vertex strand).
-    method "schur" (needs w_F > 0): the Schur complement A = J_F W_F^-1 J_F^T, which is banded
-    (banded.NormalFactor, ~0.2 ms): A lam = c - J_F W_F^-1 grad R_F, d_F = -W_F^-1 (grad R + J^T
-    lam)_F, then one step of iterative refinement on the full system. It squares cond(J_F): at the
-    groom strands' optima, where the free rest-length columns are ~1e8 times the stiffness
-    columns and cond(J_F) reaches ~4e8, its Cholesky broke down or lost every digit on most
-    strands, so the KKT measure uses "lu". On the rest blocks at p0 (alm's linear start) the two
-    steps differed by at most 6e-5 of the largest entry over 65 groom strands of 25-400 vertices.
+    Solved by an LU with partial pivoting of the whole system. The variables off F are kept as
+    unknowns with the rows d_j = 0, so the system's pattern is J's whatever F is, and its unknowns
+    are interleaved along the strand (each parameter next to the rows its column touches,
+    _saddle_order): the system is then a band (half-widths 25 on a 100-vertex element strand, 982
+    unknowns; 25 at 400 vertices) that LAPACK's dgbsv factors in ~0.4 ms, against ~1 ms for SuperLU
+    on the free variables' system of the same strand and ~1.9 ms with scipy's bmat assembly before. A column that fills most rows (the
+    strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
+    system in compressed columns (_kkt_system).
     """
     if free.sum() < J.shape[0]:  # J_F cannot have full row rank
         return None
-    if method == "schur":
-        return _schur_step(J, w, regularizer_gradient, c, free)
     if isinstance(J, StrandJacobian):
         indptr, indices, data = J.pattern.indptr, J.pattern.indices, J.data
-        row_indptr, row_indices, row_data = J.csr()
     else:
         J = sp.csc_matrix(J)
         indptr, indices, data = J.indptr.astype(np.int64), J.indices.astype(np.int64), J.data
-        rows_first = J.tocsr()
-        row_indptr, row_indices, row_data = (rows_first.indptr.astype(np.int64),
-                                             rows_first.indices.astype(np.int64), rows_first.data)
-    size = int(free.sum())
-    position = np.cumsum(free) - 1  # index of each free variable in d_F
-    n = size + J.shape[0]
-    system = sp.csc_matrix(_kkt_system(indptr, indices, data, row_indptr, row_indices, row_data,
-                                       np.asarray(w, dtype=float), free, position, size), shape=(n, n))
-    try:
-        solution = sp.linalg.splu(system).solve(-np.concatenate([regularizer_gradient[free], c]))
-    except RuntimeError:
-        return None
-    d = np.zeros_like(w)
-    d[free] = solution[:size]
-    return d, solution[size:]
+    rows, n = J.shape
+    w = np.asarray(w, dtype=float)
+    rhs = -np.concatenate([np.where(free, regularizer_gradient, 0.0), c])
+    order = _saddle_order(indptr, indices, rows)
+    if order is not None:
+        position, half = order
+        band = _saddle_band(indptr, indices, data, w, free, position, half)
+        permuted = np.empty_like(rhs)
+        permuted[position] = rhs
+        _, _, x, info = scipy.linalg.lapack.dgbsv(half, half, band, permuted, overwrite_ab=True,
+                                                  overwrite_b=True)
+        if info != 0:
+            return None
+        solution = x[position]
+    else:
+        row_csr = sp.csc_matrix((data, indices, indptr), shape=J.shape).tocsr()
+        size = int(free.sum())
+        inside = np.cumsum(free) - 1  # index of each free variable in d_F
+        system = sp.csc_matrix(_kkt_system(indptr, indices, data, row_csr.indptr.astype(np.int64),
+                                           row_csr.indices.astype(np.int64), row_csr.data, w, free, inside,
+                                           size), shape=(size + rows, size + rows))
+        try:
+            reduced = sp.linalg.splu(system).solve(np.concatenate([rhs[:n][free], rhs[n:]]))
+        except RuntimeError:
+            return None
+        solution = np.zeros(n + rows)
+        solution[np.flatnonzero(free)] = reduced[:size]
+        solution[n:] = reduced[size:]
+    d = np.where(free, solution[:n], 0.0)
+    return d, solution[n:]
 
 
-def _schur_step(J, w, regularizer_gradient, c, free):
-    """constrained_step by the banded Schur complement (method "schur")."""
-    if not np.all(w[free] > 0):
-        return None
-    inverse_w = np.where(free, 1.0 / np.where(free, w, 1.0), 0.0)
-    factor = NormalFactor(J, inverse_w, free)
-    if not factor.definite:
-        return None
-    d, lam = np.zeros_like(w), np.zeros(J.shape[0])
-    r1, r2 = -np.where(free, regularizer_gradient, 0.0), -c
-    for _ in range(2):  # the solve, then one refinement with the residual of the full system
-        d_lam = factor.solve(J @ (inverse_w * r1) - r2)
-        d += inverse_w * (r1 - J.T @ d_lam)
-        lam += d_lam
-        r1 = -np.where(free, regularizer_gradient + w * d + J.T @ lam, 0.0)
-        r2 = -c - J @ d
-    return d, lam
+#: interleaved orders of saddle systems by J's pattern (_saddle_order): the strands of a groom share a few
+_ORDERS: dict = {}
+
+
+def _saddle_order(indptr, indices, rows):
+    """(position of each unknown [d; lam] in the band order, half-bandwidth) of the system
+    [[W, J^T], [J, 0]], or None if a column of J fills most rows. A parameter is placed at the
+    middle row its column touches (an empty column after the previous parameter), the rows of J
+    at their own index; sorted stably, parameters before rows at the same place."""
+    key = (rows, indptr.tobytes(), indices.tobytes())
+    if key in _ORDERS:
+        return _ORDERS[key]
+    counts = np.diff(indptr)
+    if np.any(counts > max(50, rows // 5)):
+        order = None
+    else:
+        n = counts.size
+        filled = counts > 0
+        middle = np.zeros(n)
+        starts = indptr[:-1][filled]
+        middle[filled] = 0.5 * (np.minimum.reduceat(indices, starts) + np.maximum.reduceat(indices, starts))
+        middle = np.maximum.accumulate(np.where(filled, middle, -np.inf))  # empty: the previous place
+        keys = np.concatenate([np.where(np.isfinite(middle), middle, 0.0), np.arange(rows) + 0.25])
+        position = np.empty(n + rows, dtype=np.int64)
+        position[np.argsort(keys, kind="stable")] = np.arange(n + rows)
+        column = np.repeat(np.arange(n), counts)
+        half = int(np.abs(position[column] - position[n + indices]).max(initial=0))
+        order = (position, half)
+    if len(_ORDERS) >= 16:
+        _ORDERS.pop(next(iter(_ORDERS)))
+    _ORDERS[key] = order
+    return order
+
+
+@numba.njit(cache=True)
+def _saddle_band(indptr, indices, data, w, free, position, half):  # pragma: no cover - compiled
+    """[[W_F + I_A, J_F^T], [J_F, 0]] (I_A: the rows d_j = 0 of the variables off F) in LAPACK
+    general band storage for dgbsv: entry (i, j) of the permuted system at [2 half + i - j, j]."""
+    n = indptr.size - 1
+    size = position.size
+    band = np.zeros((3 * half + 1, size))
+    for j in range(n):
+        pj = position[j]
+        if free[j]:
+            band[2 * half, pj] = w[j]
+            for k in range(indptr[j], indptr[j + 1]):
+                pr = position[n + indices[k]]
+                band[2 * half + pr - pj, pj] = data[k]  # J: row r, column j
+                band[2 * half + pj - pr, pr] = data[k]  # J^T: row j, column r
+        else:
+            band[2 * half, pj] = 1.0
+    return band
 
 
 @numba.njit(cache=True)
