@@ -121,6 +121,7 @@ class BatchFunction:
         self._driver = driver
         if driver is not None:
             driver.restype = None
+        self._pointer_types = (ctypes.c_void_p * len(self._in_sizes), ctypes.c_void_p * len(self._out_shapes))
 
     @property
     def compiled(self) -> bool:
@@ -134,8 +135,9 @@ class BatchFunction:
             outputs = [np.empty((0, r * c)) for r, c in self._out_shapes]
         elif self._driver is not None:
             outputs = [np.empty((count, r * c)) for r, c in self._out_shapes]
-            pointers = lambda arrs: (ctypes.c_void_p * len(arrs))(*[a.ctypes.data for a in arrs])  # noqa: E731
-            self._driver(ctypes.c_longlong(count), pointers(arrays), pointers(outputs))
+            in_type, out_type = self._pointer_types
+            self._driver(ctypes.c_longlong(count), in_type(*[a.ctypes.data for a in arrays]),
+                         out_type(*[a.ctypes.data for a in outputs]))
         else:
             mapped = self.function.map(count, "serial")
             results = mapped.call([a.T for a in arrays])

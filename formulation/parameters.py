@@ -51,10 +51,14 @@ class SlotMap:
     coefficient: np.ndarray  # (stencils, slots)
     constant: np.ndarray     # (stencils, slots)
 
+    def __post_init__(self):
+        self._linked = np.flatnonzero(self.index.ravel() >= 0)  # flat positions of the linked slots
+        self._source = self.index.ravel()[self._linked]
+        self._factor = self.coefficient.ravel()[self._linked]
+
     def evaluate(self, p: np.ndarray) -> np.ndarray:
-        linked = self.index >= 0
         out = self.constant.copy()
-        out[linked] += self.coefficient[linked] * p[self.index[linked]]
+        out.ravel()[self._linked] += self._factor * p[self._source]
         return out
 
 

@@ -76,9 +76,9 @@ def constrained_step(J, w, regularizer_gradient, c, free):
     are interleaved along the strand (each parameter next to the rows its column touches,
     _saddle_order): the system is then a band (half-widths 25 on a 100-vertex element strand, 982
     unknowns; 25 at 400 vertices) that LAPACK's dgbsv factors in ~0.4 ms, against ~1 ms for SuperLU
-    on the free variables' system of the same strand and ~1.9 ms with scipy's bmat assembly before. A column that fills most rows (the
-    strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
-    system in compressed columns (_kkt_system).
+    on the free variables' system of the same strand and ~1.9 ms with scipy's bmat assembly before.
+    A column that fills most rows (the strand multiplier of ``stiffness="strand"``) would make the
+    band full: then SuperLU on the system in compressed columns (_kkt_system).
     """
     if free.sum() < J.shape[0]:  # J_F cannot have full row rank
         return None
