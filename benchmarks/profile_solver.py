@@ -3,8 +3,8 @@
     python benchmarks/profile_solver.py [--strands 100] [--vertices 100] [--jobs N]
 
 1. One process, the strands one after another, with timers around the parts of ``asc`` (each
-   part's time includes what it calls, so nested rows overlap: the strand-mode start contains its
-   own residuals): share of the total;
+   part's time includes what it calls, so nested rows overlap: the SQP steps contain their
+   residuals, the Result its residual): share of the total;
 2. the same batch on ``jobs`` worker processes: wall time against the one-process time divided by
    the jobs; the difference is process start-up, serialization and imbalance.
 """
@@ -25,8 +25,8 @@ PARTS = [
     (alm, "gram", "Gauss-Newton Hessian J^T J (banded)"),
     (Problem, "residual", "residual c(p)"),
     (alm, "make_result", "Result: summaries and stability"),
-    (alm, "kkt_optimality", "KKT confirmation (sparse LU)"),
-    (alm, "_sqp_step", "SQP steps where the constraint stalls (sparse LU)"),
+    (alm, "kkt_optimality", "KKT confirmation (band LU)"),
+    (alm, "_sqp_step", "SQP steps where the constraint stalls (band LU)"),
     (Problem, "__init__", "Problem construction"),
 ]
 

@@ -4,7 +4,7 @@ Problem.stability needs lambda_min of the free-DOF energy Hessian at q* for ever
 banded eigensolver (LAPACK dsbevx through scipy) reduces the band to tridiagonal form in O(n^2 w);
 ARPACK's Lanczos on a banded Cholesky solve is O(n) but paid ~70 us of Python per iteration (1.7 ms
 of a 100-vertex strand; 24 iterations). Here the Cholesky, its solves and the Lanczos recurrence
-(with full reorthogonalization) are numba-compiled: ~0.15 ms for the same strand.
+(with full reorthogonalization) are numba-compiled: 0.2-0.4 ms for the same strand.
 
 Method: find tau >= 0 such that H + tau I has a Cholesky factor (tau = 0 when H is positive
 definite; otherwise tau grows 10-fold from 1e-14 of the largest entry, so tau is within 10x of

@@ -252,8 +252,8 @@ class Problem:
         """Smallest eigenvalue of the free-DOF energy Hessian at q* (DESIGN 7); > 0: stable rest.
 
         Linear in n: compiled shift-and-invert Lanczos on the Hessian's band (band_eigen). (The banded
-        eigensolver used before costs O(n^2): 53-56 ms on a 400-vertex groom strand; ARPACK's
-        Lanczos 1.7 ms on a 100-vertex one, 0.15 ms now.)
+        eigensolver used before costs O(n^2): 53-56 ms on a 400-vertex groom strand. With ARPACK's
+        Lanczos this took 1.7 ms on a 100-vertex one, 0.8 ms now, of which 0.4 ms is the Hessian band.)
         """
         return smallest_eigenvalue(self.hessian_band(p)[:, self.first_free:])
 

@@ -53,8 +53,9 @@ def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -
     A lam = -J_F (grad R / h)_F with A = J_F diag(h_F)^-1 J_F^T (banded.NormalFactor, banded with
     the strand multiplier's dense column added back by Woodbury), plus one step of the corrected
     semi-normal equations: lam += A^-1 (-J_F e_F), e = (grad R + J^T lam) / h. Normal equations
-    square J's condition number; on a 60-vertex element strand with bound variables the
-    multipliers without that correction were ~20% off the least-squares optimum.
+    square J's condition number: at the linear start and the optimum of 28 groom strands of 60-400
+    vertices the multipliers were up to 1.2e-4 (relative) off numpy's least squares after the
+    first solve, 1.3e-8 after the correction.
     NaN if A is singular (J_F rank deficient); the caller then keeps its multipliers.
     """
     free = (p > lower) & (p < upper)
