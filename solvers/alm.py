@@ -349,9 +349,10 @@ def _linear_start(problem: Problem) -> np.ndarray | None:
     ~21 ms): the linear step costs one factorization and lands closer, at |c|_inf ~1e-4 to 1e-3 (the
     spread strand solution: up to 0.7) with R within ~1% of the optimum (up to 5% above it).
     Gauss-Newton steps per strand, strand start -> this one, with the initial penalty of solve_alm
-    in both: groom(100, 100, seed=0) 11.9 -> 7.2, groom(40, 50, seed=4) 13.4 -> 6.5,
-    groom(20, 200, seed=3) 13.9 -> 9.2, groom(10, 400, seed=1) 15.1 -> 9.2; factorizations 53 -> 19,
-    49 -> 16, 76 -> 26, 102 -> 30; same statuses and R (to 1e-7 relative).
+    in both (measured before the SQP step existed): groom(100, 100, seed=0) 11.9 -> 7.2,
+    groom(40, 50, seed=4) 13.4 -> 6.5, groom(20, 200, seed=3) 13.9 -> 9.2, groom(10, 400, seed=1)
+    15.1 -> 9.2; factorizations 53 -> 19, 49 -> 16, 76 -> 26, 102 -> 30; same statuses and R (to
+    1e-7 relative).
     """
     layout, blocks = problem.layout, problem.blocks
     rest = np.zeros(problem.n_parameters, dtype=bool)
@@ -378,14 +379,15 @@ def _spread_rest_change(problem: Problem, change: np.ndarray) -> np.ndarray:
         if block in blocks:
             ix = blocks[block]
             need[target] = np.maximum(1.0, (np.abs(change[ix]) / half[ix]).reshape(n_inner, -1).max(axis=1))
-    coupled = "twist_stiffness" not in blocks  # the twist then follows the bend multiplier
+    coupled = layout.couple_twist  # the twist follows the bend multiplier
     bend = np.maximum(need["bend_stiffness"], need["twist_stiffness"]) if coupled else need["bend_stiffness"]
     for block, k in (("bend_stiffness", bend), ("twist_stiffness", need["twist_stiffness"])):
         if block in blocks:
             p[blocks[block]] = np.clip(k, lower[blocks[block]], upper[blocks[block]])
     # the multipliers in force (a block not optimized keeps its specified value 1)
     k_bend = p[blocks["bend_stiffness"]] if "bend_stiffness" in blocks else np.ones(n_inner)
-    k_twist = k_bend if coupled else p[blocks["twist_stiffness"]]
+    k_twist = k_bend if coupled else (p[blocks["twist_stiffness"]] if "twist_stiffness" in blocks
+                                      else np.ones(n_inner))
     if "rest_curvature" in blocks:
         ix = blocks["rest_curvature"]
         p[ix] = p0[ix] + change[ix] / np.repeat(k_bend, ix.size // n_inner)
