@@ -282,7 +282,7 @@ def _accumulate_gram(indptr, indices, data, nb, scale, band, border, corner):  #
 
 class NormalFactor:
     """Cholesky factor of the row-space matrix A = J_C diag(d_C) J_C^T + shift I, for least-squares
-    multipliers and constrained steps (solvers.kkt).
+    multipliers (solvers.kkt).
 
     The rows of J (the free DOFs) are in strand order and each parameter column touches a few
     neighbouring rows, so A is banded and factors in O(rows w^2) with the active-set Cholesky's
