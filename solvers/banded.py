@@ -280,6 +280,20 @@ def _accumulate_gram(indptr, indices, data, nb, scale, band, border, corner):  #
                         corner[cb - nb, ca - nb] += va * data[b]
 
 
+def csc_arrays(J: sp.spmatrix | StrandJacobian) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr, indices, data) of J in compressed columns, int64 indices (numba kernels)."""
+    if isinstance(J, StrandJacobian):
+        return J.pattern.indptr, J.pattern.indices, J.data
+    J = sp.csc_matrix(J)
+    return J.indptr.astype(np.int64), J.indices.astype(np.int64), J.data
+
+
+def dense_columns(indptr: np.ndarray, rows: int) -> np.ndarray:
+    """Columns that fill most rows (the strand multiplier of ``stiffness="strand"``): in a band they
+    would fill it, so the banded factorizations keep them apart."""
+    return np.diff(indptr) > max(50, rows // 5)
+
+
 class NormalFactor:
     """Cholesky factor of the row-space matrix A = J_C diag(d_C) J_C^T + shift I, for least-squares
     multipliers (solvers.kkt).
@@ -295,14 +309,9 @@ class NormalFactor:
 
     def __init__(self, J: sp.spmatrix | StrandJacobian, d: np.ndarray, columns: np.ndarray, shift: float = 0.0):
         """J: (rows x n); d: (n,) column weights; columns: (n,) bool mask of the columns in A."""
-        if isinstance(J, StrandJacobian):
-            indptr, indices, data = J.pattern.indptr, J.pattern.indices, J.data
-        else:
-            J = sp.csc_matrix(J)
-            indptr, indices, data = J.indptr.astype(np.int64), J.indices.astype(np.int64), J.data
+        indptr, indices, data = csc_arrays(J)
         rows = J.shape[0]
-        counts = np.diff(indptr)
-        dense = columns & (counts > max(50, rows // 5))
+        dense = columns & dense_columns(indptr, rows)
         sparse_columns = columns & ~dense
         band = np.zeros((_column_span(indptr, indices, sparse_columns) + 1, rows))
         band[0] = shift
