@@ -15,7 +15,7 @@ where ours does:
   length off moves c by 1e-8), and the message reports the excess.
 One Ipopt instance per problem structure (strand size and options) is built and reused for every
 strand of that structure; the strand's numbers are the NLP's parameter vector.
-Status: ``converged`` needs |c|_inf <= tol and the KKT measure of the kkt module <= optimality_tol,
+Status: ``converged`` needs |c|_inf <= tol and the KKT distance (contract.optimality) <= kkt_tol,
 the same test as ours. Ipopt's tol 1e-10 is often below what rounding allows at a feasible optimum,
 and it then ends with Search_Direction_Becomes_Too_Small or Restoration_Failed at a point that passes
 that test; such a point counts as converged (the message keeps Ipopt's own status).
@@ -28,11 +28,10 @@ import time
 import casadi as ca
 import numpy as np
 
+from sagfree.contract.optimality import KKT_TOL, TOL, kkt_optimality
+from sagfree.contract.result import Result, make_result
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.symbolic import SymbolicNLP, structure_key
-from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
-from sagfree.solvers.kkt import kkt_optimality
-from sagfree.solvers.result import Result, make_result
 
 #: Ipopt return status -> Result status (anything else is "failed")
 RETURN_STATUS = {
@@ -60,7 +59,7 @@ def ipopt_options(tol: float, max_iterations: int, max_seconds: float) -> dict:
         "linear_solver": "mumps",
         "hessian_approximation": "exact",
         "max_iter": int(max_iterations),
-        "max_wall_time": float(max_seconds),
+        "max_wall_time": float(min(max_seconds, 1e20)),
         "print_level": 0,
         "sb": "yes",
     }
@@ -78,9 +77,12 @@ def _solver(problem: Problem, options: dict) -> tuple[ca.Function, SymbolicNLP]:
     return _SOLVERS[key], nlp
 
 
-def solve_ipopt(problem: Problem, tol: float = 1e-8, optimality_tol: float = KKT_TOLERANCE,
-                max_iterations: int = 3000, max_seconds: float = 600.0, p_start=None) -> Result:
-    """Solve ``problem`` with Ipopt from p0 (or ``p_start``); see the module docstring."""
+def solve_ipopt(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_iterations: int = 3000,
+                max_seconds: float = 600.0, p_start=None) -> Result:
+    """Solve ``problem`` with Ipopt from p0 (or ``p_start``); see the module docstring.
+
+    Common options only (contract.options): max_iterations is Ipopt's max_iter, max_seconds its
+    max_wall_time."""
     clock = time.perf_counter()
     solver, nlp = _solver(problem, ipopt_options(tol, max_iterations, max_seconds))
     start = problem.p0 if p_start is None else np.clip(np.asarray(p_start, dtype=float), problem.lower,
@@ -98,7 +100,7 @@ def solve_ipopt(problem: Problem, tol: float = 1e-8, optimality_tol: float = KKT
     optimality = kkt_optimality(problem, p)
     status = RETURN_STATUS.get(return_status, "failed")
     if status in ("converged", "failed"):
-        status = "converged" if residual <= tol and optimality <= optimality_tol else "failed"
+        status = "converged" if residual <= tol and optimality <= kkt_tol else "failed"
     counts = {
         "ipopt": int(stats.get("iter_count", 0)),
         "constraint_evaluations": int(stats.get("n_call_nlp_g", 0)),
@@ -106,7 +108,7 @@ def solve_ipopt(problem: Problem, tol: float = 1e-8, optimality_tol: float = KKT
         "hessian_evaluations": int(stats.get("n_call_nlp_hess_l", 0)),
     }
     message = (f"Ipopt: {return_status} after {counts['ipopt']} iterations; |c|_inf = {residual:.2e} "
-               f"(target {tol:g}), KKT distance {optimality:.2e} (target {optimality_tol:g})"
+               f"(target {tol:g}), KKT distance {optimality:.2e} (target {kkt_tol:g})"
                + (f"; x leaves the box by up to {outside:.1e} (rounding)" if outside > 0 else ""))
     history = [float(v) for v in stats.get("iterations", {}).get("inf_pr", [])]
     return make_result(problem, p, "ipopt", status, message, counts, time.perf_counter() - clock, history)

@@ -11,7 +11,7 @@ which keeps every QP strictly convex (the Lagrangian's Hessian is indefinite in 
 OSQP's polishing (an exact solve on the active set ADMM found) takes each subproblem beyond ADMM's
 accuracy, which the 1e-8 target needs. A backtracking line search on the l1 merit function
 R(p) + nu |c(p)|_1, nu ten times the largest multiplier seen (at least 1e3), sets the step length.
-Stops like ours: |c|_inf <= tol and the KKT measure of the kkt module <= optimality_tol.
+Stops like ours: |c|_inf <= tol and the KKT distance (contract.optimality) <= kkt_tol.
 
 What to expect (measured on the reference scenes, see tests/test_baselines.py and
 benchmarks/bench_baselines.py): the QPs have condition numbers of ~1e4 after scaling and ADMM needs
@@ -29,10 +29,9 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from sagfree.contract.optimality import KKT_TOL, TOL, gradient_scale, kkt_optimality
+from sagfree.contract.result import Result, make_result
 from sagfree.formulation.problem import Problem
-from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
-from sagfree.solvers.kkt import gradient_scale, kkt_optimality
-from sagfree.solvers.result import Result, make_result
 
 ARMIJO = 1e-4
 #: OSQP settings: no OSQP scaling (the step is scaled by S already; OSQP's Ruiz scaling on top of it
@@ -109,18 +108,20 @@ def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lo
     return solution, iterations, x[:n] * scale, np.asarray(solution.y)[:m], float(np.abs(x[n:]).sum())
 
 
-def solve_osqp(problem: Problem, tol: float = 1e-8, optimality_tol: float = KKT_TOLERANCE,
-               max_iterations: int = 50, eps: float = 1e-5, max_admm: int = 50_000,
-               max_seconds: float = 60.0) -> Result:
-    """Solve ``problem`` by SQP with OSQP subproblems from p0; see the module docstring.
+def solve_osqp(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_iterations: int = 50,
+               max_seconds: float = 60.0, p_start=None, eps: float = 1e-5, max_admm: int = 50_000) -> Result:
+    """Solve ``problem`` by SQP with OSQP subproblems from p0 (or ``p_start``, clipped into the box);
+    see the module docstring.
 
-    eps: OSQP's absolute and relative tolerance; polishing then refines the ADMM point on its active
-    set, so the steps are far more accurate than eps whenever polishing succeeds. max_admm: ADMM
-    iterations per OSQP solve. max_seconds: wall-time budget of the whole SQP (checked between
-    iterations): a stalled SQP on a 50-vertex strand otherwise spends minutes in ADMM."""
+    Common options (contract.options): max_iterations counts SQP iterations; max_seconds is the
+    wall-time budget of the whole SQP (checked between iterations: a stalled SQP on a 50-vertex strand
+    otherwise spends minutes in ADMM).
+    osqp's own: eps: OSQP's absolute and relative tolerance; polishing then refines the ADMM point on
+    its active set, so the steps are far more accurate than eps whenever polishing succeeds.
+    max_admm: ADMM iterations per OSQP solve."""
     clock = time.perf_counter()
     lower, upper = problem.layout.lower, problem.layout.upper
-    p = problem.p0
+    p = problem.p0 if p_start is None else np.clip(np.asarray(p_start, dtype=float), lower, upper)
     c, J = problem.residual(p), problem.jacobian(p)
     settings = dict(OSQP_SETTINGS, eps_abs=eps, eps_rel=eps, max_iter=max_admm)
     counts = dict(sqp=0, admm=0, line_search=0, elastic=0, polish_failures=0)
@@ -135,9 +136,9 @@ def solve_osqp(problem: Problem, tol: float = 1e-8, optimality_tol: float = KKT_
     while True:
         violation = history[-1]
         optimality = kkt_optimality(problem, p) if violation <= tol else np.inf
-        if violation <= tol and optimality <= optimality_tol:
+        if violation <= tol and optimality <= kkt_tol:
             return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance "
-                          f"{optimality:.2e} <= {optimality_tol:g} after {counts['sqp']} SQP iterations")
+                          f"{optimality:.2e} <= {kkt_tol:g} after {counts['sqp']} SQP iterations")
         elapsed = time.perf_counter() - clock
         if counts["sqp"] >= max_iterations or elapsed >= max_seconds:
             limit = (f"{max_iterations} SQP iterations" if counts["sqp"] >= max_iterations

@@ -14,12 +14,13 @@ with mu_i = D_i^2 / (M_i m g^2): the vertex's share of the strand mass on positi
 2 (m_edge / m) (l / r)^2 on angles.
 
 The Gauss-Newton normal matrix rho J^T diag(mu) J + diag(w) + kappa diag(bound violated) is banded; it
-is factored by LAPACK's banded Cholesky (with a relative Levenberg-Marquardt damping of 1e-13 of its
-diagonal, as in our solver) and an Armijo backtracking line search on F sets the step.
+is factored by the banded Cholesky of sagfree.linalg (with a relative Levenberg-Marquardt damping of
+1e-13 of its diagonal, as in our solver) and an Armijo backtracking line search on F sets the step.
 
 A minimizer of F is not an equilibrium: where the boxes bind (or gravity needs stiffness) the force
 term is only traded off against the penalties, so a residual force remains and boxes may be violated.
-The Result reports it as it is: status ``converged`` only if |c|_inf <= tol, otherwise ``failed`` with
+The Result reports it as it is: status ``converged`` only by the common rule (|c|_inf <= tol and KKT
+distance <= kkt_tol), otherwise ``failed`` with
 the residual and the largest box violation in the message. Result.p is in the caller's Problem layout
 (stiffness entries at p0) and is not clipped into the box.
 """
@@ -28,14 +29,15 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.linalg
 
+from sagfree.contract.optimality import KKT_TOL, TOL, kkt_optimality
+from sagfree.contract.result import Result, make_result
 from sagfree.formulation import dofs
+from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import Problem
-from sagfree.solvers.banded import gram
-from sagfree.solvers.result import Result, make_result
+from sagfree.linalg.band import gram
+from sagfree.linalg.cholesky import band_cholesky, band_solve
 
-REST_BLOCKS = ("rest_length", "rest_curvature", "rest_twist")
 ARMIJO = 1e-4
 DAMPING = 1e-13
 
@@ -57,6 +59,14 @@ def _objective(rest: Problem, p, c, mu, rho, kappa) -> float:
     return 0.5 * rho * float(mu @ (c * c)) + rest.objective(p) + 0.5 * kappa * float(over @ over)
 
 
+def _to_rest_layout(problem: Problem, rest: Problem, p: np.ndarray) -> np.ndarray:
+    p_rest = rest.p0
+    for block, ix in rest.blocks.items():
+        if block in problem.blocks:
+            p_rest[ix] = p[problem.blocks[block]]
+    return p_rest
+
+
 def _to_caller_layout(problem: Problem, rest: Problem, p_rest: np.ndarray) -> np.ndarray:
     p = problem.p0
     for block, ix in rest.blocks.items():
@@ -65,11 +75,16 @@ def _to_caller_layout(problem: Problem, rest: Problem, p_rest: np.ndarray) -> np
     return p
 
 
-def solve_penalty_gn(problem: Problem, tol: float = 1e-8, force_weight: float = 1e6,
-                     box_weight: float = 1e6, max_iterations: int = 200, rtol: float = 1e-12) -> Result:
+def solve_penalty_gn(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_iterations: int = 200,
+                     max_seconds: float = np.inf, p_start=None, force_weight: float = 1e6,
+                     box_weight: float = 1e6, rtol: float = 1e-12) -> Result:
     """Minimize the predecessor's penalty objective over the rest shape from p0 (module docstring).
 
-    force_weight: rho; box_weight: kappa; stops when a step changes F by less than rtol |F|."""
+    Common options (contract.options): max_iterations counts Gauss-Newton steps; max_seconds is
+    checked before each; p_start gives the rest-shape entries of the start (the caller's layout; not
+    clipped, as the boxes are penalties here).
+    penalty-gn's own: force_weight: rho; box_weight: kappa; rtol: stops when a step changes F by less
+    than rtol |F|."""
     clock = time.perf_counter()
     rest = problem.with_options(stiffness="fixed",
                                 optimize=tuple(b for b in REST_BLOCKS if b in problem.options["optimize"]))
@@ -78,13 +93,16 @@ def solve_penalty_gn(problem: Problem, tol: float = 1e-8, force_weight: float = 
                          f"{REST_BLOCKS}")
     lower, upper, w = rest.layout.lower, rest.layout.upper, rest.layout.weights
     mu = force_weights(rest)
-    p = rest.p0
+    p = rest.p0 if p_start is None else _to_rest_layout(problem, rest, np.asarray(p_start, dtype=float))
     c = rest.residual(p)
     value = _objective(rest, p, c, mu, force_weight, box_weight)
     counts = dict(gauss_newton=0, line_search=0)
     history = [float(np.abs(c).max(initial=0.0))]
     reason = f"reached max_iterations = {max_iterations}"
     while counts["gauss_newton"] < max_iterations:
+        if time.perf_counter() - clock >= max_seconds:
+            reason = f"reached max_seconds = {max_seconds:g}"
+            break
         counts["gauss_newton"] += 1
         J = rest.jacobian(p)
         violated = (p > upper) | (p < lower)
@@ -93,11 +111,11 @@ def solve_penalty_gn(problem: Problem, tol: float = 1e-8, force_weight: float = 
         weighted = J.multiply(np.sqrt(mu)[:, None]).tocsc()
         hessian = gram(weighted, w + box_weight * violated, force_weight, 0).band
         hessian[0] *= 1.0 + DAMPING
-        try:
-            step = scipy.linalg.solveh_banded(hessian, -gradient, lower=True)
-        except np.linalg.LinAlgError:
+        factor = band_cholesky(hessian)
+        if factor is None:
             reason = "the Gauss-Newton matrix lost positive definiteness"
             break
+        step = band_solve(factor, -gradient)
         slope, alpha = float(gradient @ step), 1.0
         for _ in range(40):
             counts["line_search"] += 1
@@ -118,11 +136,11 @@ def solve_penalty_gn(problem: Problem, tol: float = 1e-8, force_weight: float = 
             break
     residual = history[-1]
     violation = float(np.max(np.maximum(p - upper, 0.0) + np.maximum(lower - p, 0.0), initial=0.0))
-    status = "converged" if residual <= tol else "failed"
+    p = _to_caller_layout(problem, rest, p)
+    status = "converged" if residual <= tol and kkt_optimality(problem, p) <= kkt_tol else "failed"
     message = (f"penalty Gauss-Newton {reason} after {counts['gauss_newton']} iterations; "
                f"|c|_inf = {residual:.3g}" + ("" if status == "converged" else
-                                              f" > {tol:g}: the rest shape alone, with penalized boxes, "
-                                              "leaves this residual force")
+                                              f" (target {tol:g}): the rest shape alone, with penalized "
+                                              "boxes, leaves this residual force or is not optimal")
                + f"; largest box violation {violation:.3g}")
-    return make_result(problem, _to_caller_layout(problem, rest, p), "penalty-gn", status, message, counts,
-                       time.perf_counter() - clock, history)
+    return make_result(problem, p, "penalty-gn", status, message, counts, time.perf_counter() - clock, history)

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 import sagfree
-from sagfree.solvers.result import iteration_summary
+from sagfree.contract.result import iteration_summary
 
 SOLVERS = ("asc", "ipopt", "osqp", "penalty-gn", "naive")
 

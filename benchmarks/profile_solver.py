@@ -19,7 +19,7 @@ import sagfree.solvers.alm as alm
 from sagfree.formulation.problem import Problem
 
 PARTS = [
-    (alm, "_linear_start", "linear start (one band LU)"),
+    (alm, "linear_start", "linear start (one band LU)"),
     (alm, "solve_box_qp", "MPRGP QPs with the active-set Cholesky"),
     (Problem, "strand_jacobian", "Jacobian dc/dp (compiled stencils + assembly)"),
     (alm, "gram", "Gauss-Newton Hessian J^T J (banded)"),

@@ -5,7 +5,7 @@ pattern never changes for a Problem; only the values do. ``JacobianPattern`` sum
 parameter Jacobians into the values of that pattern (compressed sparse column order), and
 ``StrandJacobian`` holds one set of values with the products a Gauss-Newton iteration needs, compiled
 with numba: J x, J^T y, the squared column norms and the row-ordered (CSR) view that J^T J is
-accumulated from (solvers.banded.gram). A scipy matrix costs ~50 us per construction and the
+accumulated from (linalg.band.gram). A scipy matrix costs ~50 us per construction and the
 products ~20 us each in Python overhead, about a third of a 100-vertex strand's model evaluation
 per Gauss-Newton step; ``tocsc`` gives one where a sparse factorization needs it.
 """
@@ -101,6 +101,10 @@ class StrandJacobian:
     def column_norms(self) -> np.ndarray:
         """||J_{:,j}||^2 per parameter."""
         return _csc_column_norms(self.pattern.indptr, self.data)
+
+    def csc(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(indptr, indices, data) in column order (the storage itself, no copy)."""
+        return self.pattern.indptr, self.pattern.indices, self.data
 
     def csr(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(indptr, indices, data) of the same matrix in row order."""

@@ -31,8 +31,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-BLOCKS = ("rest_length", "rest_curvature", "rest_twist", "stretch_stiffness", "bend_stiffness",
-          "twist_stiffness")
+#: the rest-shape blocks and the per-element stiffness blocks; BLOCKS is their order in p
+REST_BLOCKS = ("rest_length", "rest_curvature", "rest_twist")
+STIFFNESS_BLOCKS = ("stretch_stiffness", "bend_stiffness", "twist_stiffness")
+BLOCKS = REST_BLOCKS + STIFFNESS_BLOCKS
+#: the single multiplier of ``stiffness="strand"`` (last in p)
 STRAND_BLOCK = "strand_stiffness"
 STIFFNESS_MODES = ("element", "strand", "fixed")
 BUDGETS = {"curvature_budget": 2.0, "twist_budget": 2.0}   # THETA, PHI in rad (DESIGN section 4)
@@ -40,7 +43,6 @@ RELATIVE_LENGTH_BOX = 0.05
 STIFFNESS_BOX = (1.0, 100.0)
 _EDGE_BLOCKS = {"rest_length": 1, "stretch_stiffness": 1}
 _VERTEX_BLOCKS = {"rest_curvature": 2, "rest_twist": 1, "bend_stiffness": 1, "twist_stiffness": 1}
-_STIFFNESS_BLOCKS = ("stretch_stiffness", "bend_stiffness", "twist_stiffness")
 
 
 @dataclass
@@ -76,9 +78,9 @@ class ParameterLayout:
         self.stiffness, self.couple_twist = stiffness, couple_twist
         n_edges, n_inner = n_vertices - 1, n_vertices - 2
         active = [b for b in BLOCKS if b in optimize and
-                  not (b in _STIFFNESS_BLOCKS and stiffness != "element") and
+                  not (b in STIFFNESS_BLOCKS and stiffness != "element") and
                   not (b == "twist_stiffness" and couple_twist)]
-        strand_level = stiffness == "strand" and any(b in optimize for b in _STIFFNESS_BLOCKS)
+        strand_level = stiffness == "strand" and any(b in optimize for b in STIFFNESS_BLOCKS)
 
         # ---- positions of each block's entries in p, along the strand ----
         # order: [edge 0][vertex 1][edge 1] ... [vertex n-2][edge n-2], blocks in BLOCKS order
@@ -129,7 +131,7 @@ class ParameterLayout:
             index = np.full(n, -1)
             if block in self.blocks:
                 index = self.blocks[block][element_index]
-            elif strand_level and block in _STIFFNESS_BLOCKS:
+            elif strand_level and block in STIFFNESS_BLOCKS:
                 index = np.full(n, self.size - 1)
             coef = np.where(index >= 0, coefficient, 0.0)
             constant = np.where(index >= 0, 0.0, const)
@@ -198,6 +200,14 @@ class ParameterLayout:
 
     def regularizer_gradient(self, p: np.ndarray) -> np.ndarray:
         return self.weights * (p - self.p0)
+
+    def block_mask(self, names) -> np.ndarray:
+        """Boolean mask over p of the entries of the named blocks (those not optimized are skipped)."""
+        mask = np.zeros(self.size, dtype=bool)
+        for name in names:
+            if name in self.blocks:
+                mask[self.blocks[name]] = True
+        return mask
 
     def locate(self, index: int) -> tuple[str, str]:
         """(block, element) of entry ``index`` of p, e.g. ("bend_stiffness", "vertex 3")."""

@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from sagfree.linalg.eigen import smallest_eigenvalue
+
 from . import dofs
-from .band_eigen import smallest_eigenvalue
 from .curvature import check_variant
 from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
@@ -33,6 +34,14 @@ class Problem:
     optimize: parameter blocks to optimize (parameters module). stiffness: "element" | "strand" |
     "fixed". couple_twist: gamma follows the bend multiplier. bounds, weights: parameters module.
     energies: elastic terms included (all by default; a subset serves verification and experiments).
+
+    Public members beyond the API of DESIGN section 10, for the model's own modules (symbolic,
+    simulation, verification) and for tests: ``edge_functions`` / ``vertex_functions`` (the compiled
+    stencil functions of stencils.edge_stencil / vertex_stencil: geometry, energy, gradient, Hessian,
+    parameter Jacobian), ``vertex_fixed_functions`` (the same through the vertex kinematics at q*,
+    stencils.vertex_fixed_shape), ``edge_dofs`` / ``vertex_dofs`` (each stencil's DOF indices into q,
+    dofs module), ``kinematics_at_rest`` (k and (dk/dy)^T at q*), ``stencil_inputs`` and
+    ``check_parameters``.
     """
 
     def __init__(self, strand: Strand, gravity=(0.0, 0.0, -9.81), curvature="4d", optimize=BLOCKS,
@@ -57,17 +66,17 @@ class Problem:
               else project_director(first, strand.director))
         self.frames: Frames = bishop_frames(points, a1)
         self.q_star = dofs.interleave(points, strand.theta)
-        self._edge = edge_stencil("stretch" in energies)
+        self.edge_functions = edge_stencil("stretch" in energies)
         vertex_terms = tuple(t for t in ("bend", "twist") if t in energies)
-        self._vertex = vertex_stencil(curvature, vertex_terms)
-        self._vertex_fixed = vertex_fixed_shape(curvature, vertex_terms)
-        self._edge_index = dofs.edge_stencil_index(n)
-        self._vertex_index = dofs.vertex_stencil_index(n)
+        self.vertex_functions = vertex_stencil(curvature, vertex_terms)
+        self.vertex_fixed_functions = vertex_fixed_shape(curvature, vertex_terms)
+        self.edge_dofs = dofs.edge_stencil_index(n)
+        self.vertex_dofs = dofs.vertex_stencil_index(n)
 
         # input geometry through the same compiled expressions as the energies, so that the strains,
         # curvature and twist differences vanish exactly at p0
-        (l0,) = self._edge.geometry(self.q_star[self._edge_index])
-        kappa, twist = self._vertex.geometry(self.q_star[self._vertex_index], self._reference(self.frames))
+        (l0,) = self.edge_functions.geometry(self.q_star[self.edge_dofs])
+        kappa, twist = self.vertex_functions.geometry(self.q_star[self.vertex_dofs], self._reference(self.frames))
         self.edge_lengths, self.twist_star = l0, twist
         r = strand.radius
         self._edge_geometry = np.column_stack([l0, np.full(n - 1, r)])
@@ -90,14 +99,14 @@ class Problem:
         free_row[self.free] = np.arange(self.free.sum())
         self._jacobian_pattern = JacobianPattern(
             free_row, self.row_scale, int(self.free.sum()), self.layout.size,
-            [(self._edge_index, self.layout.edge_map), (self._vertex_index, self.layout.vertex_map)])
+            [(self.edge_dofs, self.layout.edge_map), (self.vertex_dofs, self.layout.vertex_map)])
         # the stencils' inputs at q* that do not depend on p (residual and Jacobian evaluate only there)
-        self._at_rest = (np.ascontiguousarray(self.q_star[self._edge_index]),
-                         np.ascontiguousarray(self.q_star[self._vertex_index]),
+        self._at_rest = (np.ascontiguousarray(self.q_star[self.edge_dofs]),
+                         np.ascontiguousarray(self.q_star[self.vertex_dofs]),
                          np.ascontiguousarray(self._reference(self.frames)))
         # the vertex kinematics k and dk/dy at q* (stencils.FixedShapeFunctions), dk/dy transposed
-        kinematics, kinematics_jacobian = self._vertex_fixed.kinematics(*self._at_rest[1:])
-        self._kinematics_at_rest = (kinematics, np.ascontiguousarray(kinematics_jacobian.transpose(0, 2, 1)))
+        kinematics, kinematics_jacobian = self.vertex_fixed_functions.kinematics(*self._at_rest[1:])
+        self.kinematics_at_rest = (kinematics, np.ascontiguousarray(kinematics_jacobian.transpose(0, 2, 1)))
         self._free_index = np.flatnonzero(self.free)
         self._free_row_scale = self.row_scale[self._free_index]
         self._band_scatter = None  # built on the first hessian_band call
@@ -129,15 +138,15 @@ class Problem:
 
     def objective(self, p) -> float:
         """Regularizer R(p) = 1/2 sum_j w_j (p_j - p0_j)^2 (dimensionless)."""
-        return self.layout.regularizer(self._checked(p))
+        return self.layout.regularizer(self.check_parameters(p))
 
     def objective_gradient(self, p) -> np.ndarray:
-        return self.layout.regularizer_gradient(self._checked(p))
+        return self.layout.regularizer_gradient(self.check_parameters(p))
 
     def physical(self, p) -> dict[str, np.ndarray]:
         """Physical parameters: rest lengths (m), rest curvatures (n-2, 2), rest twists (rad), moduli
         alpha (per edge), beta and gamma (per interior vertex) in Pa."""
-        p = self._checked(p)
+        p = self.check_parameters(p)
         edge, vertex = self.layout.edge_map.evaluate(p), self.layout.vertex_map.evaluate(p)
         return {
             "rest_length": self.edge_lengths * (1.0 + edge[:, 0]),
@@ -149,7 +158,8 @@ class Problem:
         }
 
     # ---- model evaluation ----
-    def _checked(self, p) -> np.ndarray:
+    def check_parameters(self, p) -> np.ndarray:
+        """p as a 1-D float array; ValueError if it does not have n_parameters entries."""
         p = np.asarray(p, dtype=float).reshape(-1)
         if p.shape != (self.n_parameters,):
             raise ValueError(f"p must have {self.n_parameters} entries, got {p.size}")
@@ -167,13 +177,16 @@ class Problem:
         t, a1 = frames.tangents, frames.a1
         return np.column_stack([t[:-1], a1[:-1], t[1:], a1[1:], frames.reference_twist])
 
-    def _stencil_inputs(self, p, q, frames):
-        p = self._checked(p)
+    def stencil_inputs(self, p, q, frames):
+        """The arguments of the edge and vertex stencil functions for parameters p at state q (None:
+        q*) with reference frames ``frames`` (None: those of q*): (edge_q, edge geometry, edge physical
+        parameters), (vertex_q, reference data, vertex geometry, vertex physical parameters)."""
+        p = self.check_parameters(p)
         if q is None and frames is None:
             edge_q, vertex_q, reference = self._at_rest
         else:
             q = self._state(q)
-            edge_q, vertex_q = q[self._edge_index], q[self._vertex_index]
+            edge_q, vertex_q = q[self.edge_dofs], q[self.vertex_dofs]
             reference = self._reference(self.frames if frames is None else frames)
         edge = (edge_q, self._edge_geometry, self.layout.edge_map.evaluate(p))
         vertex = (vertex_q, reference, self._vertex_geometry, self.layout.vertex_map.evaluate(p))
@@ -182,22 +195,22 @@ class Problem:
     def energy(self, p, q=None, frames: Frames | None = None) -> float:
         """Elastic energy E(q, p), J; reference frames time-transported from those of q* (or
         ``frames``) inside the expression."""
-        edge, vertex = self._stencil_inputs(p, q, frames)
-        return float(self._edge.energy(*edge)[0].sum() + self._vertex.energy(*vertex)[0].sum())
+        edge, vertex = self.stencil_inputs(p, q, frames)
+        return float(self.edge_functions.energy(*edge)[0].sum() + self.vertex_functions.energy(*vertex)[0].sum())
 
     def elastic_gradient(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """grad_q E(q, p) (4n-1): N on positions, N m on angles. At q* (q and frames None) the vertex
         stencils' part is (dk/dy)^T dE/dk with the kinematics k at q* (stencils.FixedShapeFunctions)."""
-        edge, vertex = self._stencil_inputs(p, q, frames)
+        edge, vertex = self.stencil_inputs(p, q, frames)
         size = self.q_star.size
         if q is None and frames is None:
-            kinematics, transposed = self._kinematics_at_rest
-            (by_kinematics,) = self._vertex_fixed.gradient(kinematics, *vertex[2:])
+            kinematics, transposed = self.kinematics_at_rest
+            (by_kinematics,) = self.vertex_fixed_functions.gradient(kinematics, *vertex[2:])
             vertex_gradient = (transposed @ by_kinematics[:, :, None])[:, :, 0]
         else:
-            (vertex_gradient,) = self._vertex.gradient(*vertex)
-        return (np.bincount(self._edge_index.ravel(), self._edge.gradient(*edge)[0].ravel(), size)
-                + np.bincount(self._vertex_index.ravel(), vertex_gradient.ravel(), size))
+            (vertex_gradient,) = self.vertex_functions.gradient(*vertex)
+        return (np.bincount(self.edge_dofs.ravel(), self.edge_functions.gradient(*edge)[0].ravel(), size)
+                + np.bincount(self.vertex_dofs.ravel(), vertex_gradient.ravel(), size))
 
     def forces(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """Generalized force f = -grad_q E(q, p) + f_gravity (4n-1), N and N m."""
@@ -214,16 +227,16 @@ class Problem:
     def strand_jacobian(self, p) -> StrandJacobian:
         """dc/dp with compiled products (jacobian module): what the solvers iterate with. The vertex
         stencils' blocks are (dk/dy)^T d(dE/dk)/d(physical) at q* (stencils.FixedShapeFunctions)."""
-        edge, vertex = self._stencil_inputs(p, None, None)
-        kinematics, transposed = self._kinematics_at_rest
-        (by_kinematics,) = self._vertex_fixed.parameter_jacobian(kinematics, *vertex[2:])
+        edge, vertex = self.stencil_inputs(p, None, None)
+        kinematics, transposed = self.kinematics_at_rest
+        (by_kinematics,) = self.vertex_fixed_functions.parameter_jacobian(kinematics, *vertex[2:])
         return StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
-            self._edge.parameter_jacobian(*edge)[0], transposed @ by_kinematics))
+            self.edge_functions.parameter_jacobian(*edge)[0], transposed @ by_kinematics))
 
     def _hessian_blocks(self, p, q, frames):
-        edge, vertex = self._stencil_inputs(p, q, frames)
-        return [(self._edge_index, self._edge.hessian(*edge)[0]),
-                (self._vertex_index, self._vertex.hessian(*vertex)[0])]
+        edge, vertex = self.stencil_inputs(p, q, frames)
+        return [(self.edge_dofs, self.edge_functions.hessian(*edge)[0]),
+                (self.vertex_dofs, self.vertex_functions.hessian(*vertex)[0])]
 
     def hessian(self, p, q=None, frames: Frames | None = None) -> sp.csr_matrix:
         """d2E/dq2 (4n-1 square, sparse, half bandwidth 10)."""
@@ -242,7 +255,7 @@ class Problem:
         """
         if self._band_scatter is None:
             self._band_scatter = _band_scatter(
-                [self._edge_index, self._vertex_index], self.q_star.size)
+                [self.edge_dofs, self.vertex_dofs], self.q_star.size)
         target, lower = self._band_scatter
         values = np.concatenate([h[mask] for (_, h), mask in zip(self._hessian_blocks(p, q, frames), lower)])
         size = self.q_star.size
@@ -251,9 +264,8 @@ class Problem:
     def stability(self, p) -> float:
         """Smallest eigenvalue of the free-DOF energy Hessian at q* (DESIGN 7); > 0: stable rest.
 
-        Linear in n: compiled shift-and-invert Lanczos on the Hessian's band (band_eigen). (The banded
-        eigensolver used before costs O(n^2): 53-56 ms on a 400-vertex groom strand. With ARPACK's
-        Lanczos this took 1.7 ms on a 100-vertex one, 0.8 ms now, of which 0.4 ms is the Hessian band.)
+        Linear in n: compiled shift-and-invert Lanczos on the Hessian's band (linalg.eigen); LAPACK's
+        banded eigensolver would cost O(n^2).
         """
         return smallest_eigenvalue(self.hessian_band(p)[:, self.first_free:])
 

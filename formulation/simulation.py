@@ -22,7 +22,7 @@ iterate (exact in value: the transported frame is the same), which keeps the tra
 singularity at opposite tangents during large static sags.
 
 Newton (``newton_solve``): the free block of K = d2Phi/dq2 + mu M is banded (half bandwidth 10) and
-factored by LAPACK's banded Cholesky in O(n); an Armijo backtracking line search on Phi takes the
+factored by the banded Cholesky of sagfree.linalg in O(n); an Armijo backtracking line search on Phi takes the
 step. mu is a Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is the inertia of a pseudo
 time step 1/sqrt(mu)): it falls 16x when a full step decreased Phi by more than 0.75 of the
 quadratic model's prediction, and rises 4x after a poorer or shortened step, or when the line search fails
@@ -50,7 +50,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
+
+from sagfree.linalg.cholesky import band_cholesky, band_solve
 
 from . import dofs
 from .frames import Frames, transport_frames, unit
@@ -268,13 +269,12 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
         for _ in range(MAX_REJECTED):
             damped = band.copy()
             damped[0] += mu * metric
-            try:
-                factor = scipy.linalg.cholesky_banded(damped, lower=True)
-            except np.linalg.LinAlgError:
+            factor = band_cholesky(damped)
+            if factor is None:
                 record.indefinite += 1
                 mu = max(4.0 * mu, MU_MIN)
                 continue
-            d = -scipy.linalg.cho_solve_banded((factor, True), g)
+            d = -band_solve(factor, g)
             alpha, trial, phi_trial = _line_search(potential, q, s, phi, g @ d, d)
             if trial is not None:
                 break
@@ -335,7 +335,7 @@ def _displacement(problem: Problem, q: np.ndarray) -> float:
 def equilibrium(problem: Problem, p, tol: float = RESIDUAL_TOLERANCE, max_steps: int = 2000) -> Equilibrium:
     """Static equilibrium that q* relaxes into (damped Newton from q*, module docstring), with its sag."""
     start = time.perf_counter()
-    p = problem._checked(p)
+    p = problem.check_parameters(p)
     potential = IncrementalPotential(problem, p, problem.frames)
     q, record = newton_solve(potential, problem.q_star, tol, max_steps, mu=MU_STATIC)
     sag = _displacement(problem, q)
@@ -355,7 +355,7 @@ def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: f
     if steps < 0 or not dt > 0 or not damping >= 0:
         raise ValueError(f"need steps >= 0, dt > 0 and damping >= 0; got {steps}, {dt}, {damping}")
     start = time.perf_counter()
-    p = problem._checked(p)
+    p = problem.check_parameters(p)
     weight = generalized_masses(problem) * (1.0 / dt**2 + damping / dt)
     scales = newton_scales(problem, p)
     n = problem.n_vertices

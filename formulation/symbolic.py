@@ -64,7 +64,7 @@ def _cached(key, problem: Problem) -> SymbolicNLP:
 
 def _data_values(problem: Problem) -> dict[str, np.ndarray]:
     """Strand-specific arrays, stencil-major (one column per stencil after Fortran ravel)."""
-    edge, vertex = problem._stencil_inputs(problem.p0, None, None)
+    edge, vertex = problem.stencil_inputs(problem.p0, None, None)
     layout = problem.layout
     return {
         "edge_dofs": edge[0].T, "edge_geometry": edge[1].T,
@@ -120,14 +120,14 @@ def _build(problem: Problem) -> SymbolicNLP:
         return parts[f"{prefix}_constant"] + parts[f"{prefix}_coefficient"] * gathered
 
     # per-stencil gradients, (stencil DOFs x stencils)
-    edge_gradient = problem._edge.gradient.function.map(n_edges, "serial")(
+    edge_gradient = problem.edge_functions.gradient.function.map(n_edges, "serial")(
         parts["edge_dofs"], parts["edge_geometry"], physical(layout.edge_map, "edge", n_edges))
-    vertex_gradient = problem._vertex.gradient.function.map(n_inner, "serial")(
+    vertex_gradient = problem.vertex_functions.gradient.function.map(n_inner, "serial")(
         parts["vertex_dofs"], parts["vertex_reference"], parts["vertex_geometry"],
         physical(layout.vertex_map, "vertex", n_inner))
-    elastic = (ca.mtimes(_casadi_sparse(_scatter(problem._edge_index, size, problem.free)),
+    elastic = (ca.mtimes(_casadi_sparse(_scatter(problem.edge_dofs, size, problem.free)),
                          ca.vec(edge_gradient))
-               + ca.mtimes(_casadi_sparse(_scatter(problem._vertex_index, size, problem.free)),
+               + ca.mtimes(_casadi_sparse(_scatter(problem.vertex_dofs, size, problem.free)),
                            ca.vec(vertex_gradient)))
     constraint = parts["inverse_scale"] * (parts["gravity"] - elastic)
     difference = p - parts["p0"]

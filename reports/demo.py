@@ -19,8 +19,8 @@ from pathlib import Path
 
 from sagfree.formulation.verification import FD_TOLERANCE, HAND_TOLERANCE, verify
 from sagfree.scenes import DEFAULT_GROOM, default_groom, groom
-from sagfree.solvers.registry import SOLVERS
-from sagfree.solvers.result import status_counts, status_summary
+from sagfree.frontend.table import SOLVERS
+from sagfree.contract.result import status_counts, status_summary
 
 from . import experiments
 from .document import Heading, Paragraph, Table
@@ -62,8 +62,7 @@ def run_demo(out_dir: str | os.PathLike = "sagfree-demo", progress: bool = True,
     count, sizes, sweep_solvers = SWEEP
     sweep_solvers = [s for s in sweep_solvers if s in solvers]
     # in this process, after one warm-up solve per solver: a process's first solve loads the compiled
-    # kernels (~80 ms of it counted in Result.time), which a batch of 2 strands per worker averaged
-    # into 44-59 ms per strand where the solver itself takes 3-10 ms
+    # kernels, which would count in Result.time (compile time never enters a solver's time)
     run_study({"warm-up": groom(1, 10, seed=1)}, sweep_solvers, ("element",), simulate=False, jobs=1)
     sweep = run_study({f"groom, {n} vertices": groom(count, n, seed=0) for n in sizes}, sweep_solvers,
                       ("element",), simulate=False, jobs=1)

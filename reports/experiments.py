@@ -25,8 +25,8 @@ from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import CHECK_TOLERANCE, Simulation, equilibrium, simulate
 from sagfree.scenes import flipped, horizontal
-from sagfree.solvers.registry import solve
-from sagfree.solvers.result import Result
+from sagfree.frontend.solve import solve
+from sagfree.contract.result import Result
 
 SCENES = {"horizontal": horizontal, "flipped": flipped}
 #: Share of the strand, from the tip, that must keep its specified stiffness (DESIGN section 8).

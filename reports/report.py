@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.image import imread
 
-from sagfree.solvers.result import iteration_summary, status_summary
+from sagfree.contract.result import iteration_summary, status_summary
 
 from .document import Document, Figure, Heading, Paragraph, Table, to_markdown, write_pdf
 from .environment import versions

@@ -11,11 +11,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+from sagfree.contract.result import Result
 from sagfree.formulation.simulation import SagCheck
 from sagfree.formulation.strand import Strand
-from sagfree.solvers.batch import optimize, simulate_strands
-from sagfree.solvers.registry import SOLVERS, solver_function
-from sagfree.solvers.result import Result
+from sagfree.frontend.batch import optimize, simulate_strands
+from sagfree.frontend.options import check_options
+from sagfree.frontend.table import SOLVERS, solver_entry
 
 MODES = ("element", "strand")
 
@@ -84,8 +85,11 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
     all). solver_options: solver -> keyword arguments of the solver. jobs, scheduler: as for
     ``sagfree.optimize``.
     """
+    # unknown or unavailable solvers and misspelled options fail before any work
     for name in solvers:
-        solver_function(name)  # unknown or unavailable solvers fail before any work
+        solver_entry(name)
+    for name, options in (solver_options or {}).items():
+        check_options(name, options)
     unknown = set(modes) - {"element", "strand", "fixed"}
     if unknown:
         raise ValueError(f"unknown parameter mode(s) {sorted(unknown)}; choose from element, strand, fixed")

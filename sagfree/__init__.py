@@ -7,12 +7,25 @@
     sim = sagfree.simulate(problem, result.p, steps=200, dt=1e-3)   # sim.sag, sim.relative_sag
     static = sagfree.equilibrium(problem, result.p)                  # static.sag from q*
 """
-from sagfree import scenes
-from sagfree.formulation import Problem, Strand
-from sagfree.formulation.simulation import Equilibrium, Simulation, equilibrium, simulate
-from sagfree.scenes.catalog import load, save
-from sagfree.solvers import SOLVERS, Result, SolverUnavailable, optimize, solve
+import importlib.util as _util
+
+# The source tree keeps sagfree.formulation, .solvers, ... in folders beside sagfree/ (formulation/,
+# solvers/, ...); only installing maps them into this namespace (pyproject.toml, package-dir).
+if _util.find_spec("sagfree.formulation") is None:  # e.g. PYTHONPATH=. from a clone
+    raise ImportError(f"sagfree is not installed (found {__path__[0]} without its subpackages, which live in "
+                      "folders beside it in the source tree): run `pip install .` (or `pip install -e .`) "
+                      "in the repository first")
+
+from sagfree import scenes  # noqa: E402
+from sagfree.contract.result import Result  # noqa: E402
+from sagfree.formulation import Problem, Strand  # noqa: E402
+from sagfree.formulation.simulation import Equilibrium, Simulation, equilibrium, simulate  # noqa: E402
+from sagfree.frontend.batch import optimize  # noqa: E402
+from sagfree.frontend.options import InvalidOption  # noqa: E402
+from sagfree.frontend.solve import solve  # noqa: E402
+from sagfree.frontend.table import SOLVERS, SolverUnavailable  # noqa: E402
+from sagfree.scenes.catalog import load, save  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["Problem", "Strand", "Result", "SOLVERS", "SolverUnavailable", "solve", "optimize", "simulate",
-           "equilibrium", "Simulation", "Equilibrium", "load", "save", "scenes", "__version__"]
+__all__ = ["Problem", "Strand", "Result", "SOLVERS", "SolverUnavailable", "InvalidOption", "solve", "optimize",
+           "simulate", "equilibrium", "Simulation", "Equilibrium", "load", "save", "scenes", "__version__"]

@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sagfree.solvers.registry import SOLVERS
+from sagfree.frontend.table import SOLVERS
 
 
 def _solver_list(text: str) -> str:
@@ -59,24 +59,33 @@ def _problem_options(args) -> dict:
     return {"stiffness": args.stiffness, "curvature": args.curvature}
 
 
+def _solver_options(args) -> dict:
+    """--option NAME=VALUE pairs, checked against the solver's options before any work."""
+    from sagfree.frontend.options import check_options, parse_option
+
+    return check_options(args.solver, dict(parse_option(text, args.solver) for text in args.option or ()))
+
+
 def _optimize(args) -> int:
     import time
 
+    from sagfree.contract.result import status_summary
+    from sagfree.frontend.batch import optimize
+    from sagfree.frontend.checkpoint import Checkpoint
     from sagfree.scenes import load
     from sagfree.scenes.npz import save_parameters
-    from sagfree.solvers.batch import optimize
-    from sagfree.solvers.checkpoint import Checkpoint
-    from sagfree.solvers.result import status_summary
 
+    solver_options = _solver_options(args)
     strands = load(args.input, args.units, keep_invalid=True)
     options = _problem_options(args)
-    checkpoint = Checkpoint(args.output, strands, args.solver, options, args.resume)
+    checkpoint = Checkpoint(args.output, strands, args.solver, {**options, "solver_options": solver_options},
+                            args.resume)
     todo = [k for k in range(len(strands)) if k not in checkpoint.done]
     if checkpoint.done:
         print(f"resuming: {len(checkpoint.done)} of {len(strands)} strands were solved before")
     start = time.perf_counter()
     optimize([strands[k] for k in todo], solver=args.solver, jobs=args.jobs, progress=not args.quiet,
-             scheduler=args.scheduler, on_chunk=lambda first, res: checkpoint.save(todo[first: first + len(res)], res),
+             scheduler=args.scheduler, solver_options=solver_options, on_chunk=lambda first, res: checkpoint.save(todo[first: first + len(res)], res),
              **options)
     wall = time.perf_counter() - start
     results = [checkpoint.done[k] for k in range(len(strands))]
@@ -91,9 +100,9 @@ def _optimize(args) -> int:
 
 
 def _simulate(args) -> int:
+    from sagfree.frontend.batch import simulate_strands
     from sagfree.scenes import load
     from sagfree.scenes.npz import load_parameters
-    from sagfree.solvers.batch import simulate_strands
 
     strands = load(args.input, args.units, keep_invalid=True)
     params = load_parameters(args.params)
@@ -138,10 +147,10 @@ def _batch_arguments(command) -> None:
 
 
 def _report(args) -> int:
+    from sagfree.contract.result import status_summary
     from sagfree.reports.report import write_report
     from sagfree.reports.study import run_study
     from sagfree.scenes import load
-    from sagfree.solvers.result import status_summary
 
     scenes = {name: load(name, args.units)[: args.max_strands] for name in
               (n.strip() for n in args.scenes.split(",")) if name}
@@ -195,6 +204,9 @@ def parser() -> argparse.ArgumentParser:
     _input_arguments(opt)
     opt.add_argument("-o", "--output", required=True, metavar="OUT", help="parameters file to write (.npz)")
     opt.add_argument("--solver", default="asc", choices=SOLVERS, help="solver (default asc)")
+    opt.add_argument("--option", action="append", metavar="NAME=VALUE",
+                     help="a solver option, e.g. tol=1e-9 or max_iterations=100 (repeatable; the common "
+                     "ones: tol, kkt_tol, max_iterations, max_seconds; README, 'Solver options')")
     opt.add_argument("--stiffness", default="element", choices=("element", "strand", "fixed"),
                      help="stiffness per element, one per strand, or fixed (default element)")
     opt.add_argument("--curvature", default="4d", choices=VARIANTS, help="curvature variant (default 4d)")

@@ -1,6 +1,10 @@
-"""Our solver (augmented Lagrangian + MPRGP + active-set Cholesky), the Result type and the batch runner."""
-from .batch import optimize, solve_strand
-from .registry import SOLVERS, SolverUnavailable, solve
-from .result import Result
+"""Our method, ``asc``: augmented Lagrangian + Gauss-Newton + MPRGP + active-set Cholesky (DESIGN 5).
 
-__all__ = ["solve", "optimize", "solve_strand", "Result", "SOLVERS", "SolverUnavailable"]
+Modules: ``alm`` (the outer and Gauss-Newton loops, ``solve_alm``), ``mprgp`` (the box QPs),
+``interior_point`` (their fallback where the active set walks), ``multipliers`` (least-squares
+multipliers). The banded kernels they use are in ``sagfree.linalg``; the Result they return and the
+optimality measure are in ``sagfree.contract``.
+"""
+from .alm import solve_alm
+
+__all__ = ["solve_alm"]

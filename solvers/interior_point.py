@@ -1,19 +1,18 @@
 """Mehrotra's predictor-corrector interior-point method for the box QPs of mprgp (DESIGN 5).
 
-    minimize 1/2 x^T H x - b^T x   subject to   lower <= x <= upper,   H a bordered band (banded module),
+    minimize 1/2 x^T H x - b^T x   subject to   lower <= x <= upper,   H a bordered band (linalg.band),
 
 in the variables scaled to a unit diagonal (mprgp.solve_box_qp). MPRGP's fallback for a QP whose
-active set it can only walk: on strand-stiffness Gauss-Newton QPs of 400-vertex groom strands, the
-curvature bound that binds moves from vertex 1 to vertex 142 as the strand multiplier S rises, one
-vertex per proportioning step (284 factorizations; see mprgp's module docstring). An interior-point
-method does not identify the active set bound by bound: 14 iterations reach the same minimizer there
-(to a relative duality gap of 1e-10).
+active set it can only walk (on strand-stiffness QPs the binding curvature bound moves one vertex per
+proportioning step as the strand multiplier S rises; mprgp's module docstring). An interior-point
+method does not identify the active set bound by bound: where MPRGP needed 284 factorizations, 14
+iterations reach the same minimizer (to a relative duality gap of 1e-10).
 
 With slacks s_l = x - l, s_u = u - x (finite bounds only) and their multipliers z_l, z_u >= 0, the
 KKT conditions H x - b - z_l + z_u = 0, s_l z_l = s_u z_u = 0 are followed along the central path
 s z = sigma mu (Nocedal & Wright, Numerical Optimization, 2nd ed., algorithm 16.4, for bound
 constraints): every iteration factors H + diag(z_l / s_l + z_u / s_u), a bordered band with the
-pattern of H (banded.factor_active with every variable free, fixed ones l = u replaced by the
+pattern of H (linalg.cholesky.factor_active with every variable free, fixed ones l = u replaced by the
 identity), and solves with it twice (affine predictor, then the corrector with sigma = (mu_aff / mu)^3).
 The slacks stay positive (step to the boundary times 0.99).
 """
@@ -22,7 +21,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .banded import factor_active, matvec, solve_factored
+from sagfree.linalg.band import matvec
+from sagfree.linalg.cholesky import factor_active, solve_factored
 
 MAX_ITERATIONS = 60
 TO_BOUNDARY = 0.99  # fraction of the step to the boundary of the positive orthant
@@ -37,9 +37,8 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
     Stops when the duality gap s_l.z_l + s_u.z_u (which bounds f(x) - f* at a dual-feasible point)
     falls below ``relative_gap`` (|f(x)| + tiny) and the dual residual ||H x - b - z_l + z_u||_inf
     below ``relative_gap`` ||b||_inf, after MAX_ITERATIONS, or when a factorization breaks down (x is
-    then the last iterate). (Relative to their starting values instead, the test stopped 16% above
-    the minimum on a 400-vertex element-stiffness QP, with no bound identified.) Returns
-    (iterations, factorizations).
+    then the last iterate). The test is relative to |f|, not to the starting gap, which can stop far
+    above the minimum with no bound identified. Returns (iterations, factorizations).
     """
     n = x.size
     nb = band.shape[1]
@@ -165,8 +164,7 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
 def _snap_to_active_bounds(x, lower, upper, has_l, has_u, inner, sl, su, zl, zu):  # pragma: no cover
     """Put x on the bounds whose slack is below its multiplier (s < z): the active set the iterate
     points to. MPRGP, which the point is handed to, activates bounds one expansion at a time: from
-    the interior point itself it took 237 expansions on an element-stiffness QP of a 400-vertex
-    groom strand (269 factorizations in all)."""
+    the interior point itself it can take hundreds of expansions."""
     for i in range(x.size):
         if inner[i] and has_l[i] and sl[i] < zl[i]:
             x[i] = lower[i]

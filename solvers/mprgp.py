@@ -2,7 +2,7 @@
 
     minimize 1/2 x^T H x - b^T x   subject to   lower <= x <= upper,   H symmetric positive definite,
 
-with H a bordered band (banded module). With g = H x - b and the free set F = {i: l_i < x_i < u_i}:
+with H a bordered band (linalg.band). With g = H x - b and the free set F = {i: l_i < x_i < u_i}:
 
 * free gradient phi_i = g_i on F, 0 elsewhere; chopped gradient beta_i = min(g_i, 0) at a lower bound,
   max(g_i, 0) at an upper bound; projected gradient g^P = phi + beta;
@@ -14,51 +14,38 @@ with H a bordered band (banded module). With g = H x - b and the free set F = {i
   only moves to a point of lower f): the step to the boundary continues along the bent path
   P(x - t p) to its first minimizer, and the projected preconditioned step P(x - t M_F^-1 phi)
   (t = 1, 1/2, ...) replaces the gradient step when it is lower. Both activate many bounds at once,
-  where the plain expansion activates one: on the Gauss-Newton QPs of a 100-vertex groom strand,
-  whose scaled condition number is ~1e9, this took the worst QP from 592 expansions to about 70;
-  The bent path is searched breakpoint by breakpoint with O(w) updates (_projected_search);
+  where the plain expansion activates one, which matters at the scaled condition numbers (~1e9) of
+  the Gauss-Newton QPs. The bent path is searched breakpoint by breakpoint with O(w) updates
+  (_projected_search);
 * otherwise a PROPORTIONING step, which releases bound variables: Dostal's step along -beta, or,
   with the active-set Cholesky, the projected search along the Newton direction of the face enlarged
-  by the variables beta would release, whichever is lower (so again at least Dostal's decrease). On
-  the Gauss-Newton QPs of 10 groom strands it cut the expansions per QP from 6.0 to 4.5 at 400
-  vertices and the time per QP by 4% (400 vertices) and 13% (100).
+  by the variables beta would release, whichever is lower (so again at least Dostal's decrease).
 
-Preconditioners of the CG steps: ``cholesky`` (the active-set Cholesky: the exact factor of H on the free
-set, so a CG step jumps to the face minimizer; refactored whenever the free set changes, from the
-first changed variable on), ``jacobi``
-(diag(H) on F) and ``none``. Iterations of each kind and factorizations are counted where they happen.
-The whole loop is compiled (numba): no Python per iteration.
+Preconditioners of the CG steps: ``cholesky`` (the active-set Cholesky of linalg.cholesky: the exact
+factor of H on the free set, so a CG step jumps to the face minimizer; refactored whenever the free
+set changes, from the first changed variable on), ``jacobi`` (diag(H) on F) and ``none``. Iterations
+of each kind and factorizations are counted where they happen. The whole loop is compiled (numba):
+no Python per iteration.
 
 Primal-dual active-set prelude (Hintermueller, Ito & Kunisch, SIAM J. Optim. 13, 2002), with the
 active-set Cholesky only: minimize over the face of x0 exactly, guess the next active set as the
 variables that x - g puts out of the box (scaled variables, so c = 1), repeat up to
 ``active_set_steps`` times or until the guess repeats (then the iterate is the solution). MPRGP starts
 from the projected iterate with the lowest f, or x0 if none is lower, so its convergence guarantee is
-kept. Each step costs one factorization, but jumps many bounds at once where MPRGP moves a front of
-bounds one variable per proportioning step. Measured on the Gauss-Newton QPs of 10 element-stiffness
-groom strands (``groom(10, 400, seed=1)``, replayed): 7.07 -> 3.11 factorizations per QP (1494 ->
-731 ms); at 100 vertices (``groom(40, 100, seed=1)``) 2.79 -> 2.58. It is not a cure-all: with the
-dense border of strand stiffness the guesses cycle (15.85 -> 24.08 factorizations per QP), so the
-default (``active_set_steps=None``) runs it only without a border; and on a 1-D obstacle problem
-started from 0 it over-activates and MPRGP then needs 68 factorizations instead of 34.
+kept. Each step costs one factorization but jumps many bounds at once, where MPRGP moves a front of
+bounds one variable per proportioning step: it halves the factorizations of 400-vertex element QPs.
+With the dense border of strand stiffness the guesses cycle, so the default
+(``active_set_steps=None``) runs it only without a border.
 
-Interior-point fallback (interior_point module): where the active set can only be walked, MPRGP
-pays one factorization per step of the walk. On the strand-stiffness Gauss-Newton QPs of 400-vertex
-groom strands, the binding rest-curvature bound moves from vertex 1 to vertex 142 as the strand
-multiplier rises, one vertex per proportioning step (284 factorizations for one QP; a QP typically
-needs 1-5). So after WALKING factorizations the QP goes to Mehrotra's interior-point method (from
-its own start; 12-25 iterations of one factorization each, to a relative duality gap of
-INTERIOR_GAP, then put on the bounds it identifies), and MPRGP goes on, with the prelude, from the
-better of the two points (lower f) to the tolerance set by x0. (Without the prelude, MPRGP needed
-up to 224 expansions, one bound each, to activate the bounds the interior point left just inside
-the box on an element-stiffness QP; with it, 4 factorizations.) Replayed, paired in one process:
-strand stiffness 2314 -> 1012 factorizations (880 -> 418 ms) on the QPs of ``groom(10, 400,
-seed=1)``, 2763 -> 1127 (1034 -> 457 ms) on ``groom(20, 400, seed=0)``, 2583 -> 2315 (268 -> 242
-ms) on ``groom(40, 100, seed=1)``; element stiffness 852 -> 852, 1027 -> 1051 (667 -> 676 ms) and
-1201 -> 1201 (the fallback is rare there); all with a budget of 30 factorizations. A budget of 20
-took the strand-stiffness QPs a further 10% down (1127 -> 1003, 1012 -> 863, 2315 -> 2146
-factorizations) and the element ones 2-5% up (1051 -> 1101, 852 -> 869, 1201 -> 1201): 2-6% less
-QP time in all, so WALKING = 20; 15 saved a little more on strand QPs and lost more on element QPs.
+Interior-point fallback (interior_point module): where the active set can only be walked (on
+strand-stiffness QPs the binding rest-curvature bound moves one vertex per proportioning step as the
+strand multiplier rises), MPRGP pays one factorization per step of the walk. So after WALKING
+factorizations the QP goes to Mehrotra's interior-point method (from its own start, to a relative
+duality gap of INTERIOR_GAP, then put on the bounds it identifies), and MPRGP goes on, with the
+prelude, from the better of the two points (lower f) to the tolerance set by x0. WALKING = 20 is
+the budget that balances strand QPs (fewer factorizations with a smaller budget) against element
+QPs (more).
+The measurements behind these choices are in benchmarks/RESULTS.md.
 """
 from __future__ import annotations
 
@@ -67,7 +54,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .banded import BorderedBand, factor_active, gershgorin_bound, matvec, solve_factored
+from sagfree.linalg.band import BorderedBand, gershgorin_bound, matvec
+from sagfree.linalg.cholesky import factor_active, solve_factored
+
 from .interior_point import interior_point
 
 PRECONDITIONERS = {"none": 0, "jacobi": 1, "cholesky": 2}
@@ -329,7 +318,7 @@ def _mprgp(band, border, corner, b, lower, upper, x, rtol, atol, max_iterations,
            active_set_steps, max_factorizations, counts):  # pragma: no cover - compiled
     n = x.size
     nb = band.shape[1]
-    lb = np.empty((nb, band.shape[0]))  # factor columns (banded.factor_active)
+    lb = np.empty((nb, band.shape[0]))  # factor columns (linalg.cholesky.factor_active)
     lborder = np.empty_like(border)
     lcorner = np.empty_like(corner)
     g = np.empty(n)

@@ -5,8 +5,8 @@ import pytest
 
 import sagfree
 from sagfree.formulation.symbolic import SymbolicNLP
-from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
-from sagfree.solvers.kkt import kkt_optimality
+from sagfree.contract.optimality import KKT_TOL
+from sagfree.contract.optimality import kkt_optimality
 
 SMALL_AND_MEDIUM = {
     "horizontal": lambda: sagfree.scenes.horizontal(),
@@ -32,9 +32,9 @@ def dense_kkt_step(problem, p):
 
 @pytest.mark.parametrize("stiffness", ["element", "strand"])
 def test_constrained_step_matches_a_dense_solve(stiffness, rng):
-    """kkt.constrained_step (band LU of the interleaved saddle system; SuperLU where the strand
+    """linalg.saddle.constrained_step (band LU of the interleaved saddle system; SuperLU where the strand
     multiplier's column is dense) against numpy on the same system, some variables on bounds."""
-    from sagfree.solvers.kkt import constrained_step
+    from sagfree.linalg.saddle import constrained_step
     problem = sagfree.Problem(sagfree.scenes.helix(n=25), stiffness=stiffness)
     p = problem.p0 + 0.3 * rng.random(problem.n_parameters) * (problem.upper - problem.p0)
     free = np.ones(problem.n_parameters, dtype=bool)
@@ -63,7 +63,7 @@ def test_kkt_measure_frees_near_bound_variables_when_too_few_are_free():
     slack = 1e-6 * (layout.upper - layout.lower)
     near = (result.p - layout.lower <= slack) | (layout.upper - result.p <= slack)
     assert (~near).sum() < problem.residual(result.p).size
-    assert kkt_optimality(problem, result.p) <= KKT_TOLERANCE
+    assert kkt_optimality(problem, result.p) <= KKT_TOL
 
 
 def test_symbolic_nlp_is_the_problem_constraint():
@@ -117,7 +117,7 @@ def test_osqp_sqp_converges_to_our_optimum(scene):
     assert sqp.status == "converged", sqp.message
     assert np.abs(problem.residual(sqp.p)).max() <= 1e-8
     assert sqp.objective == pytest.approx(ours.objective, rel=1e-6)
-    assert kkt_optimality(problem, sqp.p) <= KKT_TOLERANCE
+    assert kkt_optimality(problem, sqp.p) <= KKT_TOL
     assert sqp.iterations["sqp"] > 1 and sqp.iterations["admm"] > sqp.iterations["sqp"]
 
 

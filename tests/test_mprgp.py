@@ -7,7 +7,8 @@ from scipy.optimize import lsq_linear
 import sagfree
 import sagfree.solvers.alm as alm
 import sagfree.solvers.mprgp as mprgp
-from sagfree.solvers.banded import bordered_band, factor_active, gram, matvec, solve_factored
+from sagfree.linalg.band import bordered_band, gram, matvec
+from sagfree.linalg.cholesky import factor_active, solve_factored
 from sagfree.solvers.interior_point import interior_point
 from sagfree.solvers.mprgp import PRECONDITIONERS, solve_box_qp
 
@@ -108,7 +109,7 @@ def test_indefinite_matrix_is_reported(rng):
 
 @pytest.mark.parametrize("border", [0, 1])
 def test_gram_is_the_banded_gauss_newton_hessian(rng, border):
-    """banded.gram(J, d, s, border) = diag(d) + s J^T J, for a banded J with a dense last column
+    """linalg.band.gram(J, d, s, border) = diag(d) + s J^T J, for a banded J with a dense last column
     (the strand multiplier) given with each row's entries in reverse order."""
     rows, n = 30, 25
     J = rng.standard_normal((rows, n))

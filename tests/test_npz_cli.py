@@ -32,7 +32,7 @@ def test_strands_round_trip(tmp_path):
 def test_parameters_round_trip_keeps_failed_strands(tmp_path):
     strands = mixed_strands()
     results = sagfree.optimize(strands, jobs=1)
-    results[1] = sagfree.solvers.result.failed_result("asc", "poisoned on purpose")
+    results[1] = sagfree.contract.result.failed_result("asc", "poisoned on purpose")
     save_parameters(tmp_path / "p.npz", strands, results, "asc", {"stiffness": "element"})
     back = load_parameters(tmp_path / "p.npz")
     assert back.solver == "asc" and back.problem_options == {"stiffness": "element"}

@@ -66,10 +66,10 @@ def test_fixed_shape_chain_rule_matches_the_full_stencils(variant, rng):
         p = perturbed_parameters(pb, rng)
         full = pb.elastic_gradient(p, pb.q_star.copy(), pb.frames)  # q given: the full stencils
         assert np.allclose(pb.elastic_gradient(p), full, rtol=1e-12, atol=1e-12 * np.abs(full).max())
-        edge, vertex = pb._stencil_inputs(p, pb.q_star.copy(), pb.frames)
-        (full_jacobian,) = pb._vertex.parameter_jacobian(*vertex)
-        kinematics, transposed = pb._kinematics_at_rest
-        (by_kinematics,) = pb._vertex_fixed.parameter_jacobian(kinematics, *vertex[2:])
+        edge, vertex = pb.stencil_inputs(p, pb.q_star.copy(), pb.frames)
+        (full_jacobian,) = pb.vertex_functions.parameter_jacobian(*vertex)
+        kinematics, transposed = pb.kinematics_at_rest
+        (by_kinematics,) = pb.vertex_fixed_functions.parameter_jacobian(kinematics, *vertex[2:])
         assert np.allclose(transposed @ by_kinematics, full_jacobian, rtol=1e-12,
                            atol=1e-12 * np.abs(full_jacobian).max())
 

@@ -1,5 +1,6 @@
 """Reliability: bad input is named, one bad strand never stops a batch, interrupted runs resume to the
 same result, solver failures and hangs end as `failed` strands."""
+import dataclasses
 import subprocess
 import sys
 import time
@@ -8,7 +9,6 @@ import numpy as np
 import pytest
 
 import sagfree
-import sagfree.baselines.naive
 from sagfree.cli import main
 from sagfree.formulation.strand import InvalidStrand
 from sagfree.scenes.npz import load_parameters, save_strands
@@ -120,7 +120,7 @@ def test_resume_refuses_a_checkpoint_of_other_input(tmp_path, capsys):
 
 def test_solver_errors_and_hangs_end_as_failed_strands(monkeypatch):
     strands = sagfree.scenes.groom(4, 10, seed=2)
-    real = sagfree.baselines.naive.solve_naive
+    real = sagfree.SOLVERS["naive"].function
 
     def troubled(problem, **options):
         height = problem.strand.points[-1, 2]
@@ -130,7 +130,7 @@ def test_solver_errors_and_hangs_end_as_failed_strands(monkeypatch):
             time.sleep(120)  # a hang
         return real(problem, **options)
 
-    monkeypatch.setattr(sagfree.baselines.naive, "solve_naive", troubled)
+    monkeypatch.setitem(sagfree.SOLVERS, "naive", dataclasses.replace(sagfree.SOLVERS["naive"], function=troubled))
     start = time.perf_counter()
     results = sagfree.optimize(strands, solver="naive", jobs=2, strand_timeout=3.0)
     assert time.perf_counter() - start < 60

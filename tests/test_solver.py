@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import sagfree
-from sagfree.solvers.kkt import TOLERANCE as KKT_TOLERANCE
-from sagfree.solvers.kkt import kkt_optimality
-from sagfree.solvers.result import STIFFENED
+from sagfree.contract.optimality import KKT_TOL
+from sagfree.contract.optimality import kkt_optimality
+from sagfree.contract.result import STIFFENED
 
 DATA = Path(__file__).parent / "data"
 
@@ -40,7 +40,7 @@ def check_solution(problem, result):
     assert result.residual_inf == pytest.approx(np.abs(problem.residual(result.p)).max())
     assert np.all(result.p >= problem.lower) and np.all(result.p <= problem.upper)
     assert kkt_violation(problem, result.p) < 1e-5
-    assert kkt_optimality(problem, result.p) <= KKT_TOLERANCE  # the constrained-step measure
+    assert kkt_optimality(problem, result.p) <= KKT_TOL  # the constrained-step measure
     assert result.objective == pytest.approx(problem.objective(result.p))
 
 
@@ -135,11 +135,11 @@ def test_batch_is_deterministic_for_any_job_count_and_isolates_failures():
 
 @pytest.mark.parametrize("scene", ["horizontal", "curly"])
 def test_linear_start_balances_gravity_with_stiffness_only_where_the_boxes_bind(scene):
-    """The element-mode start (alm._linear_start): the least rest-shape change that balances gravity
+    """The element-mode start (alm.linear_start): the least rest-shape change that balances gravity
     at unit stiffness, brought into the boxes by stiffening where it does not fit."""
-    from sagfree.solvers.alm import _linear_start
+    from sagfree.solvers.alm import linear_start
     problem = sagfree.Problem(SCENES[scene]())
-    start = _linear_start(problem)
+    start = linear_start(problem)
     layout, blocks = problem.layout, problem.blocks
     assert np.all(start >= layout.lower) and np.all(start <= layout.upper)
     # planar `horizontal` exactly; the 4d curvature's frames and the rest lengths' strain leave a little
@@ -171,7 +171,7 @@ def test_refactorizations_are_partial_on_groom_strands():
 def test_a_stalled_inner_loop_hands_over_to_the_kkt_check():
     """groom(40, 400, seed=0)[33] becomes feasible early, but then the model predicts a decrease
     just above the rounding estimate of L while L only moves by rounding: without the stall test
-    the inner loop took such steps until max_gauss_newton (alm module docstring, Stall)."""
+    the inner loop took such steps until max_iterations (alm module docstring, Stall)."""
     strand = sagfree.scenes.groom(40, 400, seed=0)[33]
     result = sagfree.solve(sagfree.Problem(strand))
     assert result.status == "converged", result.message
@@ -192,8 +192,8 @@ def test_no_multiplier_update_without_a_step():
 def test_strands_that_crawled_at_large_mu_converge():
     """Strands on which Gauss-Newton once crawled at large mu (steps then -> the bound asserted):
     inheriting the strand-stiffness start's final penalty sent the first two crawling (497; the
-    second, saved in tests/data, 580 steps into max_gauss_newton); the third reached |c|_inf =
-    8.2e-7 at mu = 1e6 after the linear start and took 590 steps of ~2e-7 into max_gauss_newton
+    second, saved in tests/data, 580 steps into max_iterations); the third reached |c|_inf =
+    8.2e-7 at mu = 1e6 after the linear start and took 590 steps of ~2e-7 into max_iterations
     until a stalled constraint took the SQP step (alm._sqp_step) instead of a larger mu; the fourth
     crawled at |c|_inf = 2e-5 within one inner solve for 480 steps (71 with inner solves capped at
     alm.INNER_STEPS, 5 with the corrected SQP step); on the fifth the full SQP step raised
@@ -210,12 +210,12 @@ def test_strands_that_crawled_at_large_mu_converge():
 
 @pytest.mark.parametrize("dense_column", [True, False])
 def test_least_squares_multipliers_minimize_the_scaled_lagrangian_gradient(dense_column, rng):
-    """kkt.least_squares_multipliers against dense least squares on a banded J, with a column that
+    """multipliers.least_squares_multipliers against dense least squares on a banded J, with a column that
     fills every row (as the strand multiplier's; kept out of the sparse normal matrix by the Woodbury
     identity) and without it."""
     import scipy.sparse as sp
 
-    from sagfree.solvers.kkt import least_squares_multipliers
+    from sagfree.solvers.multipliers import least_squares_multipliers
 
     rows, n = 200, 300  # more parameters than constraints, as in sagfree
     J = rng.standard_normal((rows, n))

@@ -20,7 +20,7 @@ import numpy as np
 
 from sagfree.scenes.file_io import write_atomically
 
-from .result import Result
+from sagfree.contract.result import Result
 
 MANIFEST = "manifest.json"
 

@@ -12,14 +12,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sagfree.formulation import dofs
-from sagfree.formulation.parameters import STRAND_BLOCK
+from sagfree.formulation.parameters import REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 
+#: converged: |c|_inf <= tol and KKT distance <= kkt_tol; infeasible: no point of the box balances
+#: the load; max_iterations: stopped at a limit (max_iterations, max_seconds or a solver's own);
+#: failed: anything else (the message says what).
 STATUSES = ("converged", "infeasible", "max_iterations", "failed")
 #: A multiplier above this counts as stiffened (DESIGN section 8).
 STIFFENED = 1.01
-STIFFNESS_BLOCKS = ("stretch_stiffness", "bend_stiffness", "twist_stiffness", STRAND_BLOCK)
-REST_BLOCKS = ("rest_length", "rest_curvature", "rest_twist")
 
 
 @dataclass
@@ -78,7 +79,7 @@ def max_vertex_force(problem: Problem, p: np.ndarray) -> float:
 
 def stiffening_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
     out = {}
-    for block in STIFFNESS_BLOCKS:
+    for block in (*STIFFNESS_BLOCKS, STRAND_BLOCK):
         if block in problem.blocks:
             ratio = p[problem.blocks[block]] / problem.layout.p0[problem.blocks[block]]
             out[block] = {"max": float(ratio.max()), "mean": float(ratio.mean()),

@@ -21,12 +21,13 @@ from functools import partial
 
 import numpy as np
 
+from sagfree.contract.result import Result, failed_result
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import SagCheck, sag_check
 from sagfree.formulation.strand import Strand
 
-from .registry import solver_function
-from .result import Result, failed_result
+from .options import check_options, check_problem_options
+from .table import solver_entry
 
 #: Seconds a strand may take before a batch on worker processes declares its chunk hung.
 STRAND_TIMEOUT = 600.0
@@ -34,14 +35,15 @@ STRAND_TIMEOUT = 600.0
 
 def solve_strand(strand: Strand, solver: str = "asc", solver_options: dict | None = None,
                  **problem_options) -> Result:
-    """Build the Problem of one strand and solve it; never raises for a bad strand or a solver error."""
+    """Build the Problem of one strand and solve it; never raises for a bad strand or a solver error
+    (the options are checked once by ``optimize``, before the batch)."""
     start = time.perf_counter()
     try:
         problem = Problem(strand, **problem_options)
     except Exception as exc:  # noqa: BLE001 - reported in the Result, the batch goes on
         return failed_result(solver, f"invalid strand or options: {exc}", time=time.perf_counter() - start)
     try:
-        return solver_function(solver)(problem, **(solver_options or {}))
+        return solver_entry(solver).function(problem, **(solver_options or {}))
     except Exception as exc:  # noqa: BLE001
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
         return failed_result(solver, f"{solver} raised {detail}", problem.n_parameters,
@@ -138,14 +140,17 @@ def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_optio
 
     jobs: worker processes (None = all cores, 1 = in this process; with "local", the LocalCluster's
     workers). scheduler: None, "local" or a Dask scheduler address / Client (cluster module).
-    solver_options: keyword arguments of the solver function (e.g. ``tol``). on_chunk(first,
+    solver_options: the solver's options (e.g. ``tol``; contract.options), checked once before any
+    strand is solved, like ``problem_options``: a misspelled name raises InvalidOption. on_chunk(first,
     results): called as each chunk of strands finishes (checkpoints; map_strands). strand_timeout:
     seconds a strand may take on worker processes before its chunk counts as hung. problem_options:
     keyword arguments of Problem (gravity, curvature, optimize, stiffness, couple_twist, bounds,
     weights).
     """
     strands = list(strands)
-    solver_function(solver)  # an unknown solver is a usage error, raised before any work
+    # usage errors (unknown solver, missing plugin, misspelled option) are raised once, before any work
+    solver_options = check_options(solver, solver_options)
+    check_problem_options(problem_options)
     return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
                        jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk, strand_timeout)
 
@@ -175,6 +180,7 @@ def simulate_strands(strands, parameters, steps: int = 200, dt: float = 1e-3, da
     parameters: one p per strand (None or NaN: not checked); jobs, scheduler and problem_options as
     for ``optimize``.
     """
+    check_problem_options(problem_options)
     strands, parameters = list(strands), list(parameters)
     if len(strands) != len(parameters):
         raise ValueError(f"{len(strands)} strands but {len(parameters)} parameter vectors")

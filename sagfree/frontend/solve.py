@@ -1,0 +1,15 @@
+"""``sagfree.solve``: one strand's Problem with any solver of the table (DESIGN section 10)."""
+from __future__ import annotations
+
+from sagfree.contract.result import Result
+from sagfree.formulation.problem import Problem
+
+from .options import check_options
+from .table import solver_entry
+
+
+def solve(problem: Problem, solver: str = "asc", **options) -> Result:
+    """Solve one strand's problem with ``solver`` (a name of SOLVERS); ``options`` are checked against
+    the solver's (frontend.options) before it runs."""
+    entry = solver_entry(solver)
+    return entry.function(problem, **check_options(solver, options))

@@ -1,0 +1,64 @@
+"""The solver table: every name ``sagfree.solve`` accepts, filled by plain imports (as qpsolvers
+fills its table), above our method and the baselines, which never import each other.
+
+A solver is a function ``(problem, **options) -> Result``; its keyword parameters are its options
+(contract.options for the common ones). A solver whose plugin is missing stays in the table and
+raises SolverUnavailable, naming what to install, before any strand is solved.
+"""
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from sagfree.baselines import ipopt, naive, osqp_sqp, penalty_gn
+from sagfree.contract.result import Result
+from sagfree.solvers import solve_alm
+
+
+class SolverUnavailable(RuntimeError):
+    """A known solver whose plugin or package is not installed."""
+
+
+@dataclass(frozen=True)
+class Solver:
+    """One row of the table: the function, what it is, and whether it can run here."""
+
+    name: str
+    function: Callable[..., Result]
+    description: str
+    available: Callable[[], bool] = field(default=lambda: True)
+    requirement: str = ""
+
+    @property
+    def options(self) -> dict[str, object]:
+        """Option name -> default, read from the function's keyword parameters."""
+        parameters = list(inspect.signature(self.function).parameters.values())[1:]  # after the problem
+        return {p.name: p.default for p in parameters}
+
+    def check_available(self) -> None:
+        if not self.available():
+            raise SolverUnavailable(f"solver {self.name!r} is not available: it needs {self.requirement}")
+
+
+SOLVERS: dict[str, Solver] = {s.name: s for s in (
+    Solver("asc", solve_alm, "ours: augmented Lagrangian + Gauss-Newton + MPRGP + active-set Cholesky"),
+    Solver("ipopt", ipopt.solve_ipopt, "Ipopt through CasADi's nlpsol, exact Hessian, MUMPS",
+           lambda: ipopt.available(),
+           "CasADi's Ipopt plugin (casadi.has_nlpsol('ipopt') is False); the CasADi wheels on PyPI bundle it: "
+           "pip install --force-reinstall 'casadi>=3.6'"),
+    Solver("osqp", osqp_sqp.solve_osqp, "SQP with OSQP subproblems", lambda: osqp_sqp.available(),
+           "the osqp package (import osqp failed): pip install 'osqp>=1.0'"),
+    Solver("penalty-gn", penalty_gn.solve_penalty_gn, "the predecessor: rest shape by penalty Gauss-Newton"),
+    Solver("naive", naive.solve_naive, "no optimization: the Result of p0 (or p_start)"),
+)}
+
+
+def solver_entry(name: str) -> Solver:
+    """The table row of ``name``: ValueError for an unknown name, SolverUnavailable when a plugin it
+    needs is missing (so a batch can refuse before any work)."""
+    if name not in SOLVERS:
+        raise ValueError(f"unknown solver {name!r}; available: {', '.join(SOLVERS)}")
+    entry = SOLVERS[name]
+    entry.check_available()
+    return entry

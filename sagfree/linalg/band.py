@@ -1,0 +1,183 @@
+"""Bordered banded symmetric matrices: storage, products and J^T J.
+
+The Gauss-Newton Hessian H = diag(R'') + mu J^T J is banded when p is ordered along the strand
+(element stiffness), except for the single strand multiplier of ``stiffness="strand"``, which couples
+to everything. So H is stored as a band of the first nb = n - m variables plus a dense border of the
+last m (m = 0 or 1):
+
+    H = [[B, C^T], [C, D]],  B banded (lower storage band[k, j] = B[j + k, j], k = 0..w),
+    C dense (m, nb), D dense (m, m).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+
+@dataclass
+class BorderedBand:
+    """H as (band, border, corner); see the module docstring."""
+
+    band: np.ndarray    # (w + 1, nb)
+    border: np.ndarray  # (m, nb)
+    corner: np.ndarray  # (m, m)
+
+    @property
+    def size(self) -> int:
+        return self.band.shape[1] + self.corner.shape[0]
+
+    def to_dense(self) -> np.ndarray:
+        nb, m = self.band.shape[1], self.corner.shape[0]
+        dense = np.zeros((nb + m, nb + m))
+        for k in range(self.band.shape[0]):
+            idx = np.arange(nb - k)
+            dense[idx + k, idx] = self.band[k, : nb - k]
+            dense[idx, idx + k] = self.band[k, : nb - k]
+        dense[nb:, :nb] = self.border
+        dense[:nb, nb:] = self.border.T
+        dense[nb:, nb:] = self.corner
+        return dense
+
+
+def bordered_band(matrix: sp.spmatrix, border: int) -> BorderedBand:
+    """Split a symmetric sparse matrix into band + dense border of the last ``border`` variables."""
+    coo = sp.tril(matrix, format="coo")
+    n = matrix.shape[0]
+    nb = n - border
+    in_band = coo.col < nb
+    in_band &= coo.row < nb
+    width = int((coo.row[in_band] - coo.col[in_band]).max(initial=0))
+    band = np.zeros((width + 1, nb))
+    np.add.at(band, (coo.row[in_band] - coo.col[in_band], coo.col[in_band]), coo.data[in_band])
+    dense = sp.csr_matrix(matrix)[nb:].toarray() if border else np.zeros((0, n))
+    return BorderedBand(band, np.ascontiguousarray(dense[:, :nb]), np.ascontiguousarray(dense[:, nb:]))
+
+
+@numba.njit(cache=True)
+def matvec(band, border, corner, x, out):  # pragma: no cover - compiled
+    """out = H x."""
+    w1, nb = band.shape
+    m = corner.shape[0]
+    for j in range(nb):
+        out[j] = band[0, j] * x[j]
+    for k in range(1, w1):
+        for j in range(nb - k):
+            out[j + k] += band[k, j] * x[j]
+            out[j] += band[k, j] * x[j + k]
+    for r in range(m):
+        s = 0.0
+        for j in range(nb):
+            out[j] += border[r, j] * x[nb + r]
+            s += border[r, j] * x[j]
+        for c in range(m):
+            s += corner[r, c] * x[nb + c]
+        out[nb + r] = s
+
+
+@numba.njit(cache=True)
+def gershgorin_bound(band, border, corner):  # pragma: no cover - compiled
+    """An upper bound of the largest eigenvalue of H: the largest absolute row sum."""
+    w1, nb = band.shape
+    m = corner.shape[0]
+    rows = np.zeros(nb + m)
+    for j in range(nb):
+        rows[j] += abs(band[0, j])
+    for k in range(1, w1):
+        for j in range(nb - k):
+            rows[j + k] += abs(band[k, j])
+            rows[j] += abs(band[k, j])
+    for r in range(m):
+        for j in range(nb):
+            rows[j] += abs(border[r, j])
+            rows[nb + r] += abs(border[r, j])
+        for c in range(m):
+            rows[nb + r] += abs(corner[r, c])
+    return rows.max()
+
+
+def gram(J, diagonal: np.ndarray, scale: float, border: int) -> BorderedBand:
+    """diag(diagonal) + scale J^T J as a bordered band, accumulated row by row from J (no sparse
+    matrix product): each row of J touches only the parameters of a few neighbouring elements."""
+    indptr, indices, data = csr_arrays(J)
+    n = J.shape[1]
+    nb = n - border
+    width = _row_span(indptr, indices, nb)
+    band = np.zeros((width + 1, nb))
+    band[0] = diagonal[:nb]
+    bord = np.zeros((border, nb))
+    corner = np.diag(diagonal[nb:]).astype(float).reshape(border, border)
+    _accumulate_gram(indptr, indices, data, nb, scale, band, bord, corner)
+    return BorderedBand(band, bord, corner)
+
+
+@numba.njit(cache=True)
+def _row_span(indptr, indices, nb):  # pragma: no cover - compiled
+    """Largest distance between two band columns (< nb) that share a row."""
+    width = 0
+    for r in range(indptr.size - 1):
+        lo, hi = nb, -1
+        for k in range(indptr[r], indptr[r + 1]):
+            c = indices[k]
+            if c < nb:
+                lo = min(lo, c)
+                hi = max(hi, c)
+        width = max(width, hi - lo)
+    return width
+
+
+@numba.njit(cache=True)
+def _accumulate_gram(indptr, indices, data, nb, scale, band, border, corner):  # pragma: no cover
+    """Add scale J^T J, each pair of a row's entries once (the row's columns are sorted, so the
+    band column comes first and border columns last)."""
+    for r in range(indptr.size - 1):
+        for a in range(indptr[r], indptr[r + 1]):
+            ca, va = indices[a], scale * data[a]
+            for b in range(a, indptr[r + 1]):
+                cb = indices[b]
+                if cb < nb:
+                    band[cb - ca, ca] += va * data[b]
+                elif ca < nb:
+                    border[cb - nb, ca] += va * data[b]
+                else:
+                    corner[ca - nb, cb - nb] += va * data[b]
+                    if cb != ca:
+                        corner[cb - nb, ca - nb] += va * data[b]
+
+
+
+
+def csr_arrays(J) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr, indices, data) of J in compressed rows with sorted int64 indices (numba kernels)."""
+    if hasattr(J, "csr"):
+        return J.csr()
+    J = sp.csr_matrix(J)
+    J = J if J.has_sorted_indices else J.sorted_indices()
+    return J.indptr.astype(np.int64), J.indices.astype(np.int64), J.data
+
+
+def csc_arrays(J) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr, indices, data) of J in compressed columns, int64 indices (numba kernels)."""
+    if hasattr(J, "csc"):
+        return J.csc()
+    J = sp.csc_matrix(J)
+    return J.indptr.astype(np.int64), J.indices.astype(np.int64), J.data
+
+
+def dense_columns(indptr: np.ndarray, rows: int) -> np.ndarray:
+    """Columns that fill most rows (the strand multiplier of ``stiffness="strand"``): in a band they
+    would fill it, so the banded factorizations keep them apart."""
+    return np.diff(indptr) > max(50, rows // 5)
+
+
+def column_norms(J) -> np.ndarray:
+    """||J_{:,j}||^2 per column (summed per compressed column, not through J.multiply(J))."""
+    if hasattr(J, "column_norms"):
+        return J.column_norms()
+    J = sp.csc_matrix(J)
+    norms = np.zeros(J.shape[1])
+    filled = np.diff(J.indptr) > 0
+    norms[filled] = np.add.reduceat(J.data**2, J.indptr[:-1][filled])
+    return norms

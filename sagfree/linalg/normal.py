@@ -1,0 +1,82 @@
+"""The row-space normal matrix A = J_C diag(d_C) J_C^T + shift I of a strand Jacobian, factored."""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .band import csc_arrays, dense_columns
+from .cholesky import factor_active, solve_factored
+
+
+class NormalFactor:
+    """Cholesky factor of the row-space matrix A = J_C diag(d_C) J_C^T + shift I, for least-squares
+    multipliers (solvers.multipliers).
+
+    The rows of J (the free DOFs) are in strand order and each parameter column touches a few
+    neighbouring rows, so A is banded and factors in O(rows w^2) with the active-set Cholesky's
+    kernels (all variables free). A column that fills most rows (the strand multiplier of
+    ``stiffness="strand"``) would fill the band: such columns U (scaled by sqrt(d)) are kept out and
+    added back by the Woodbury identity, (A + U U^T)^-1 = A^-1 - A^-1 U (I + U^T A^-1 U)^-1 U^T A^-1.
+    The band factor is about ten times faster than a sparse LU of the same matrix.
+    """
+
+    def __init__(self, J, d: np.ndarray, columns: np.ndarray, shift: float = 0.0):
+        """J: (rows x n); d: (n,) column weights; columns: (n,) bool mask of the columns in A."""
+        indptr, indices, data = csc_arrays(J)
+        rows = J.shape[0]
+        dense = columns & dense_columns(indptr, rows)
+        sparse_columns = columns & ~dense
+        band = np.zeros((_column_span(indptr, indices, sparse_columns) + 1, rows))
+        band[0] = shift
+        _accumulate_row_gram(indptr, indices, data, np.asarray(d, dtype=float), sparse_columns, band)
+        self._cols = np.empty((rows, band.shape[0]))
+        self._empty_border, self._empty_corner = np.zeros((0, rows)), np.zeros((0, 0))
+        self.definite = factor_active(band, self._empty_border, self._empty_corner, np.ones(rows, dtype=np.bool_),
+                                      self._cols, self._empty_border, self._empty_corner, 0, 0)
+        self._U = np.zeros((rows, int(dense.sum())))
+        for k, j in enumerate(np.flatnonzero(dense)):
+            self._U[indices[indptr[j]:indptr[j + 1]], k] = data[indptr[j]:indptr[j + 1]] * np.sqrt(d[j])
+        if self.definite and self._U.shape[1]:
+            self._AU = np.column_stack([self._band_solve(u) for u in self._U.T])
+            self._capacitance = np.eye(self._U.shape[1]) + self._U.T @ self._AU
+
+    def _band_solve(self, rhs: np.ndarray) -> np.ndarray:
+        out = np.empty(rhs.size)
+        solve_factored(self._cols, self._empty_border, self._empty_corner, np.ascontiguousarray(rhs, dtype=float),
+                       out)
+        return out
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """A^-1 rhs (only if ``definite``)."""
+        x = self._band_solve(rhs)
+        if self._U.shape[1]:
+            x -= self._AU @ np.linalg.solve(self._capacitance, self._U.T @ x)
+        return x
+
+
+@numba.njit(cache=True)
+def _column_span(indptr, indices, include):  # pragma: no cover - compiled
+    """Largest distance between two rows that share an included column."""
+    width = 0
+    for j in range(indptr.size - 1):
+        if include[j] and indptr[j + 1] > indptr[j]:
+            lo, hi = indices[indptr[j]], indices[indptr[j]]
+            for k in range(indptr[j], indptr[j + 1]):
+                lo = min(lo, indices[k])
+                hi = max(hi, indices[k])
+            width = max(width, hi - lo)
+    return width
+
+
+@numba.njit(cache=True)
+def _accumulate_row_gram(indptr, indices, data, d, include, band):  # pragma: no cover - compiled
+    """Add d_j J[:, j] J[:, j]^T of every included column j to the lower band (rows x rows)."""
+    for j in range(indptr.size - 1):
+        if not include[j]:
+            continue
+        for a in range(indptr[j], indptr[j + 1]):
+            ra, va = indices[a], d[j] * data[a]
+            for b in range(indptr[j], indptr[j + 1]):
+                rb = indices[b]
+                if rb >= ra:
+                    band[rb - ra, ra] += va * data[b]
