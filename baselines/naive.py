@@ -21,7 +21,8 @@ def solve_naive(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, ma
     p = problem.p0 if p_start is None else np.clip(np.asarray(p_start, dtype=float), problem.lower, problem.upper)
     residual = float(abs(problem.residual(p)).max(initial=0.0))
     if residual <= tol and (distance := kkt_optimality(problem, p)) <= kkt_tol:
-        status, message = "converged", f"already an equilibrium: |c|_inf = {residual:.2e}, KKT distance {distance:.2e}"
+        status = "converged"
+        message = f"already an equilibrium: |c|_inf = {residual:.2e}, KKT distance {distance:.2e}"
     elif residual <= tol:
         status, message = "failed", f"in equilibrium but not optimal: KKT distance {distance:.2e} > {kkt_tol:g}"
     else:

@@ -66,6 +66,23 @@ def _solver_options(args) -> dict:
     return check_options(args.solver, dict(parse_option(text, args.solver) for text in args.option or ()))
 
 
+def study_options(option_texts, solvers) -> dict:
+    """--option [SOLVER:]NAME=VALUE pairs of a study: with a solver prefix for that solver only,
+    without one for every solver of the study (so it must be an option each takes, e.g. tol)."""
+    from sagfree.frontend.options import InvalidOption, check_options, parse_option
+
+    options: dict = {solver: {} for solver in solvers}
+    for text in option_texts or ():
+        prefix, colon, rest = text.partition(":")
+        targets, pair = ([prefix], rest) if colon and "=" not in prefix else (list(solvers), text)
+        for solver in targets:
+            if solver not in options:
+                raise InvalidOption(f"--option {text}: {solver!r} is not a solver of this study "
+                                    f"({', '.join(solvers)})")
+            options[solver].update([parse_option(pair, solver)])
+    return {solver: check_options(solver, given) for solver, given in options.items() if given}
+
+
 def _optimize(args) -> int:
     import time
 
@@ -155,9 +172,10 @@ def _report(args) -> int:
     scenes = {name: load(name, args.units)[: args.max_strands] for name in
               (n.strip() for n in args.scenes.split(",")) if name}
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
+    solver_options = study_options(args.option, solvers)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     study = run_study(scenes, solvers, modes, steps=args.steps, dt=args.dt, jobs=args.jobs,
-                      progress=not args.quiet, scheduler=args.scheduler)
+                      progress=not args.quiet, scheduler=args.scheduler, solver_options=solver_options)
     files = write_report(study, args.out, "sagfree report", pdf=not args.no_pdf)
     for case in study.cases:
         print(f"{case.scene:12} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {status_summary(case.results)}")
@@ -242,6 +260,9 @@ def parser() -> argparse.ArgumentParser:
     rep.add_argument("--modes", default="element,strand", help="comma-separated stiffness modes (default: "
                      "element,strand)")
     rep.add_argument("--max-strands", type=int, default=None, help="solve only the first N strands of each scene")
+    rep.add_argument("--option", action="append", metavar="[SOLVER:]NAME=VALUE",
+                     help="a solver option, for one solver (osqp:max_seconds=20) or for every solver of the "
+                     "study (tol=1e-9); repeatable")
     rep.add_argument("--no-pdf", action="store_true", help="write report.md only")
     _simulation_arguments(rep)
     _batch_arguments(rep)

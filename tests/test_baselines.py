@@ -5,8 +5,7 @@ import pytest
 
 import sagfree
 from sagfree.formulation.symbolic import SymbolicNLP
-from sagfree.contract.optimality import KKT_TOL
-from sagfree.contract.optimality import kkt_optimality
+from sagfree.contract.optimality import KKT_TOL, kkt_optimality
 
 SMALL_AND_MEDIUM = {
     "horizontal": lambda: sagfree.scenes.horizontal(),

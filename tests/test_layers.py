@@ -86,8 +86,8 @@ def test_import_from_a_clone_without_installing_says_to_install(tmp_path):
     """PYTHONPATH=. from a clone finds sagfree/ without its subpackages: a clear message, not a
     circular-import error. (-S: without site-packages, as where sagfree is not installed.)"""
     shutil.copytree(ROOT / "sagfree", tmp_path / "sagfree", ignore=shutil.ignore_patterns("__pycache__"))
-    run = subprocess.run([sys.executable, "-S", "-c", "import sagfree"], cwd=tmp_path, capture_output=True, text=True,
-                         env=dict(os.environ, PYTHONPATH=str(tmp_path)), timeout=120)
+    run = subprocess.run([sys.executable, "-S", "-c", "import sagfree"], cwd=tmp_path, capture_output=True,
+                         text=True, env=dict(os.environ, PYTHONPATH=str(tmp_path)), timeout=120)
     assert run.returncode != 0
     assert "sagfree is not installed" in run.stderr and "pip install ." in run.stderr, run.stderr
 

@@ -92,3 +92,33 @@ def test_cli_passes_options_and_refuses_misspelled_ones(tmp_path, capsys):
     assert main(["optimize", "horizontal", "-o", str(out), "--option", "max_iteration=5", "--quiet"]) == 2
     error = capsys.readouterr().err
     assert "no option 'max_iteration'" in error and "did you mean 'max_iterations'" in error
+
+
+def test_study_options_apply_to_one_solver_or_to_every_solver():
+    from sagfree.cli import study_options
+
+    options = study_options(["tol=1e-9", "osqp:max_seconds=20", "asc:gradient_tol=1e-7"], ["asc", "osqp"])
+    assert options == {"asc": {"tol": 1e-9, "gradient_tol": 1e-7}, "osqp": {"tol": 1e-9, "max_seconds": 20.0}}
+    with pytest.raises(InvalidOption, match="solver 'osqp' has no option 'gradient_tol'"):
+        study_options(["gradient_tol=1e-7"], ["asc", "osqp"])  # not every solver takes it
+    with pytest.raises(InvalidOption, match="'ipopt' is not a solver of this study"):
+        study_options(["ipopt:tol=1e-9"], ["asc", "osqp"])
+
+
+def test_readme_options_table_matches_the_defaults():
+    """The README's table of common options states each solver's default as the code has it."""
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    header = next(line for line in readme.splitlines() if line.startswith("| option | meaning |"))
+    solvers = [cell.strip() for cell in header.strip("|").split("|")[2:]]
+    assert solvers == list(sagfree.SOLVERS)
+    for name in COMMON:
+        row = next(line for line in readme.splitlines() if line.startswith(f"| `{name}` |"))
+        cells = [cell.strip() for cell in row.strip("|").replace("\\|", "").split("|")[2:]]
+        for solver, cell in zip(solvers, cells):
+            default = sagfree.SOLVERS[solver].options[name]
+            if cell in ("-", "p0", "linear start"):
+                assert name in ("max_iterations", "max_seconds", "p_start"), (name, solver)
+                continue
+            assert float(cell) == default, (name, solver, cell, default)

@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 import sagfree
-from sagfree.contract.optimality import KKT_TOL
-from sagfree.contract.optimality import kkt_optimality
+from sagfree.contract.optimality import KKT_TOL, kkt_optimality
 from sagfree.contract.result import STIFFENED
 
 DATA = Path(__file__).parent / "data"
