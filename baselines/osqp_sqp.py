@@ -10,7 +10,8 @@ infeasible). R is quadratic, so diag(w) is R's exact Hessian; the constraint cur
 which keeps every QP strictly convex (the Lagrangian's Hessian is indefinite in element mode).
 OSQP's polishing (an exact solve on the active set ADMM found) takes each subproblem beyond ADMM's
 accuracy, which the 1e-8 target needs. A backtracking line search on the l1 merit function
-R(p) + nu |c(p)|_1, nu ten times the largest multiplier seen (at least 1e3), sets the step length.
+R(p) / mean(w) + nu |c(p)|_1, nu ten times the largest multiplier seen (at least 1e3), sets the step
+length (the objective scaled to O(1) per element, _objective_scale).
 Stops like ours: |c|_inf <= tol and the KKT distance (contract.optimality) <= kkt_tol.
 
 What to expect (measured on the reference scenes, see tests/test_baselines.py and
@@ -53,8 +54,15 @@ def available() -> bool:
     return True
 
 
+def _objective_scale(problem: Problem) -> float:
+    """1 / mean weight: the regularizer in the units where its Hessian is O(1) per element. R weighs
+    each element by its share of the strand (~1/n); OSQP's absolute tolerances and the penalty nu
+    assume an O(1) objective, and unscaled the SQP stalled at |c|_inf ~1e-8 on groom strands."""
+    return 1.0 / float(np.mean(problem.layout.weights))
+
+
 def _merit(problem: Problem, p, c, nu) -> float:
-    return problem.objective(p) + nu * float(np.abs(c).sum())
+    return _objective_scale(problem) * problem.objective(p) + nu * float(np.abs(c).sum())
 
 
 def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lower, d_upper, nu,
@@ -80,7 +88,7 @@ def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lo
     import osqp
 
     m, n = J.shape
-    w = problem.layout.weights
+    w = _objective_scale(problem) * problem.layout.weights
     scale = 1.0 / np.sqrt(gradient_scale(w, J))
     slacks = m if form == "elastic" else 0
     blocks = [J @ sp.diags(scale), -sp.identity(m)] if slacks else [J @ sp.diags(scale)]
@@ -148,7 +156,7 @@ def solve_osqp(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max
                           f"subproblems reached their tolerance in {counts['sqp'] - counts['polish_failures']} "
                           "of them (polished)")
         counts["sqp"] += 1
-        gradient = problem.objective_gradient(p)
+        gradient = _objective_scale(problem) * problem.objective_gradient(p)
         for form in ("hard", "elastic"):
             solution, iterations, d, multipliers, slack = _subproblem(form, problem, J, c, gradient, lower - p,
                                                                       upper - p, nu, settings, warm)

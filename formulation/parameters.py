@@ -21,6 +21,12 @@ multiplier s, supplement section V), ``fixed`` (rest shape only, the predecessor
 ``couple_twist=True`` (default) the bend multiplier also scales gamma and ``twist_stiffness`` is not a
 separate block even when listed in ``optimize``.
 
+Regularizer: R(p) = 1/2 sum_j w_b(j) a_j (p_j - p0_j)^2 with w_b the block's weight (``weights``,
+default 1; a scalar or an array of the block's size) and a_j the element's share of the strand's
+length: its edge length over L for edge blocks, its Voronoi length (l_{i-1} + l_i)/2 over L for
+vertex blocks, 1 for the strand multiplier. So R of the same physical strand converges as the
+resolution grows and a weight means the same at every n (a plain per-element sum grows like n).
+
 User bounds: ``bounds={block: (lower, upper)}`` in the block's own variable (scalars or arrays of the
 block's size; absolute values, so p0 must lie inside), plus ``curvature_budget`` (THETA, rad) and
 ``twist_budget`` (PHI, rad) to resize the default curvature and twist boxes.
@@ -117,7 +123,15 @@ class ParameterLayout:
                            budgets["twist_budget"] * share),
         }
         self.p0, self.lower, self.upper = np.zeros(self.size), np.zeros(self.size), np.zeros(self.size)
-        self.weights = np.ones(self.size)
+        # each element's share of the strand's length (regularizer, module docstring)
+        self.share = np.ones(self.size)
+        edge_share = lengths / lengths.sum()
+        for b, ix in self.blocks.items():
+            if b in _EDGE_BLOCKS:
+                self.share[ix] = edge_share
+            elif b in _VERTEX_BLOCKS:
+                self.share[ix] = np.repeat(share, _VERTEX_BLOCKS[b])
+        self.weights = self.share.copy()
         for b, ix in self.blocks.items():
             if b in defaults:
                 p0, lo, hi = defaults[b]
@@ -167,7 +181,7 @@ class ParameterLayout:
             self.upper[ix] = np.broadcast_to(np.asarray(hi, dtype=float), ix.shape)
         for name, value in (weights or {}).items():
             ix = self._block_index(name, "weights")
-            self.weights[ix] = np.broadcast_to(np.asarray(value, dtype=float), ix.shape)
+            self.weights[ix] = self.share[ix] * np.broadcast_to(np.asarray(value, dtype=float), ix.shape)
         self.validate()
 
     def _block_index(self, name: str, what: str) -> np.ndarray:
@@ -193,7 +207,7 @@ class ParameterLayout:
                     raise ValueError(f"block {name!r}, entry {k}: {what} (lower {lo[k]:.6g}, "
                                      f"upper {hi[k]:.6g}, p0 {p0[k]:.6g}, weight {w[k]:.6g})")
 
-    # ---- regularizer R(p) = 1/2 sum_j w_j (p_j - p0_j)^2 (DESIGN section 4) ----
+    # ---- regularizer R(p) = 1/2 sum_j w_b(j) a_j (p_j - p0_j)^2 (DESIGN section 4) ----
     def regularizer(self, p: np.ndarray) -> float:
         d = p - self.p0
         return 0.5 * float(np.sum(self.weights * d * d))

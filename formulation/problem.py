@@ -9,22 +9,27 @@ functions; dc/dp is assembled from their exact parameter Jacobians into a sparse
 """
 from __future__ import annotations
 
+import copy
+import functools
+
 import numpy as np
 import scipy.sparse as sp
 
-from sagfree.linalg.eigen import smallest_eigenvalue
+from sagfree.linalg.eigen import smallest_eigenpair
 
 from . import dofs
 from .curvature import check_variant
 from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
 from .jacobian import JacobianPattern, StrandJacobian
-from .parameters import BLOCKS, ParameterLayout
+from .parameters import BLOCKS, STRAND_BLOCK, ParameterLayout
 from .stencils import edge_stencil, vertex_fixed_shape, vertex_stencil
 from .strand import InvalidStrand, Strand
 
 #: Half bandwidth of every DOF Hessian: a vertex stencil spans 11 consecutive DOFs (dofs module).
 HALF_BANDWIDTH = 10
+#: Default stability margin: this share of the unstressed strand's smallest eigenvalue (Problem).
+STABILITY_FRACTION = 0.1
 
 
 class Problem:
@@ -34,6 +39,10 @@ class Problem:
     optimize: parameter blocks to optimize (parameters module). stiffness: "element" | "strand" |
     "fixed". couple_twist: gamma follows the bend multiplier. bounds, weights: parameters module.
     energies: elastic terms included (all by default; a subset serves verification and experiments).
+    stabilize: a solution must be a STABLE rest state, ``stability(p) >= stability_margin`` (DESIGN
+    4; frontend.stabilize raises stiffness where needed); False gives the paper's bare problem.
+    min_eigenvalue: that margin in s^-2; None: STABILITY_FRACTION of the unstressed strand's
+    smallest eigenvalue (``stability(p0)``: at p0 the rest shape is q*, so nothing is stressed).
 
     Public members beyond the API of DESIGN section 10, for the model's own modules (symbolic,
     simulation, verification) and for tests: ``edge_functions`` / ``vertex_functions`` (the compiled
@@ -45,7 +54,8 @@ class Problem:
     """
 
     def __init__(self, strand: Strand, gravity=(0.0, 0.0, -9.81), curvature="4d", optimize=BLOCKS,
-                 stiffness="element", couple_twist=True, bounds=None, weights=None, energies=TERMS):
+                 stiffness="element", couple_twist=True, bounds=None, weights=None, energies=TERMS,
+                 stabilize=True, min_eigenvalue=None):
         if not isinstance(strand, Strand):
             raise ValueError(strand.message if isinstance(strand, InvalidStrand) else
                              f"expected a sagfree.Strand, got {type(strand).__name__}")
@@ -57,8 +67,12 @@ class Problem:
         if unknown:
             raise ValueError(f"unknown energy terms {sorted(unknown)}; choose from {TERMS}")
         self.strand, self.curvature, self.energies = strand, curvature, tuple(energies)
+        if min_eigenvalue is not None and not np.isfinite(min_eigenvalue):
+            raise ValueError(f"min_eigenvalue must be a finite number of s^-2 or None, got {min_eigenvalue!r}")
+        self.stabilize, self.min_eigenvalue = bool(stabilize), min_eigenvalue
         self.options = dict(gravity=gravity, curvature=curvature, optimize=optimize, stiffness=stiffness,
-                            couple_twist=couple_twist, bounds=bounds, weights=weights, energies=energies)
+                            couple_twist=couple_twist, bounds=bounds, weights=weights, energies=energies,
+                            stabilize=stabilize, min_eigenvalue=min_eigenvalue)
         n = self.n_vertices = strand.n_vertices
         points = strand.points
         first = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
@@ -114,6 +128,24 @@ class Problem:
     def with_options(self, **changes) -> "Problem":
         """The same strand's Problem with some constructor options changed."""
         return Problem(self.strand, **{**self.options, **changes})
+
+    def with_lower_bounds(self, lower: np.ndarray) -> "Problem":
+        """A copy whose lower bounds are max(lower bounds, ``lower``) (capped at the upper bounds):
+        the stiffness floors of the stabilization. p0 may then lie outside the box."""
+        twin = copy.copy(self)
+        twin.layout = copy.copy(self.layout)
+        twin.layout.lower = np.minimum(np.maximum(self.layout.lower, lower), self.layout.upper)
+        return twin
+
+    @functools.cached_property
+    def stability_margin(self) -> float:
+        """The smallest eigenvalue (s^-2) a stable solution must reach: ``min_eigenvalue``, or
+        STABILITY_FRACTION of the unstressed strand's. A tenth keeps the slowest mode within a
+        factor ~3 in frequency of the unstressed strand's, so a pushed strand swings back within a
+        few of its natural periods and no nearby model of the same strand loses its stability."""
+        if self.min_eigenvalue is not None:
+            return float(self.min_eigenvalue)
+        return STABILITY_FRACTION * self.stability(self.p0)
 
     # ---- parameters ----
     @property
@@ -261,13 +293,80 @@ class Problem:
         size = self.q_star.size
         return np.bincount(target, values, minlength=(HALF_BANDWIDTH + 1) * size).reshape(-1, size)
 
-    def stability(self, p) -> float:
-        """Smallest eigenvalue of the free-DOF energy Hessian at q* (DESIGN 7); > 0: stable rest.
+    @property
+    def dof_masses(self) -> np.ndarray:
+        """Lumped inertia per DOF (4n-1): the vertex mass m_i (kg) on positions, the edge's polar
+        moment rho pi r^4 l0_j / 2 (kg m^2) on th_j (what the simulation integrates)."""
+        n = self.n_vertices
+        mass = np.empty(self.q_star.size)
+        mass[dofs.position_index(n)] = self.masses[:, None]
+        mass[dofs.theta_index(n)] = 0.5 * self.strand.density * np.pi * self.strand.radius**4 * self.edge_lengths
+        return mass
 
-        Linear in n: compiled shift-and-invert Lanczos on the Hessian's band (linalg.eigen); LAPACK's
-        banded eigensolver would cost O(n^2).
+    def stability(self, p, vector: bool = False):
+        """Smallest eigenvalue omega^2 (s^-2) of the free-DOF energy Hessian at q*, mass-normalized:
+        the smallest lambda of H_F v = lambda M_F v with M the lumped inertia of ``dof_masses`` (DESIGN
+        7). omega^2 of the slowest mode if positive (a stable rest state); if negative, a push grows
+        like exp(sqrt(-lambda) t). Twist DOFs enter with their rotational inertia, as in the
+        simulation, so lambda is the linearized dynamics of the simulated strand. (The raw Hessian
+        mixes N/m and N m/rad^2; its smallest eigenvalue says little.)
+
+        With ``vector``: (lambda, v), v the mode on all DOFs (zero on the prescribed ones),
+        normalized so that v^T M v = 1. Linear in n: compiled shift-and-invert Lanczos on the scaled
+        band M^-1/2 H M^-1/2 (linalg.eigen).
         """
-        return smallest_eigenvalue(self.hessian_band(p)[:, self.first_free:])
+        band = self.hessian_band(p)[:, self.first_free:]
+        scale = 1.0 / np.sqrt(self.dof_masses[self.first_free:])
+        size = band.shape[1]
+        scaled = np.zeros_like(band)
+        for k in range(band.shape[0]):
+            scaled[k, : size - k] = band[k, : size - k] * scale[k:] * scale[: size - k]
+        value, mode = smallest_eigenpair(scaled)
+        if not vector:
+            return value
+        v = np.zeros(self.q_star.size)
+        v[self.first_free:] = mode * scale
+        return value, v
+
+    def stiffening_gradient(self, p, mode: np.ndarray) -> np.ndarray:
+        """d lambda / d k_j for each stiffness multiplier k_j of p (zero on the other entries): the
+        growth of the eigenvalue of ``mode`` (from ``stability(p, vector=True)``) when k_j rises while
+        the element's rest shape moves to keep its forces at q* (rest_change.restiffen: k (kbar -
+        kappa*), k (mbar - m*), k strain held).
+
+        Along that move the stress term of the Hessian (moment x curvature of kappa) is fixed by
+        statics and only the element's unstressed term k G_j grows, G_j the Hessian of its energy at
+        unit multiplier with its rest shape equal to q* (PSD). So d lambda / d k_j = v^T G_j v >= 0
+        for v^T M v = 1 (first-order perturbation of a simple eigenvalue), and lambda is concave in
+        the multipliers along such moves.
+        """
+        p = self.check_parameters(p)
+        edge, vertex = self.stencil_inputs(p, None, None)
+        strand = self.strand
+        (vertex_q, reference, geometry, physical), (edge_q, edge_geometry, edge_physical) = vertex, edge
+        unstressed = physical.copy()
+        unstressed[:, 2:4] = geometry[:, 4:6]  # kbar = kappa* (the 4d map adds the rotated pair)
+        unstressed[:, 4] = geometry[:, 3]      # mbar = m*
+        forms = {}
+        for name, moduli in (("bend", (strand.youngs_modulus, 0.0)), ("twist", (0.0, strand.shear_modulus))):
+            unstressed[:, 5:7] = moduli
+            (hessians,) = self.vertex_functions.hessian(vertex_q, reference, geometry, unstressed)
+            local = mode[self.vertex_dofs]
+            forms[name] = np.einsum("si,sij,sj->s", local, hessians, local)
+        edge_unstressed = np.column_stack([np.zeros(len(edge_q)), np.full(len(edge_q), strand.youngs_modulus)])
+        (hessians,) = self.edge_functions.hessian(edge_q, edge_geometry, edge_unstressed)
+        local = mode[self.edge_dofs]
+        forms["stretch"] = np.einsum("si,sij,sj->s", local, hessians, local)
+        gradient = np.zeros(self.n_parameters)
+        blocks = self.layout.blocks
+        per_block = {"stretch_stiffness": forms["stretch"], "twist_stiffness": forms["twist"],
+                     "bend_stiffness": forms["bend"] + (forms["twist"] if self.layout.couple_twist else 0.0)}
+        for block, values in per_block.items():
+            if block in blocks:
+                gradient[blocks[block]] = values
+        if STRAND_BLOCK in blocks:
+            gradient[blocks[STRAND_BLOCK]] = sum(float(values.sum()) for values in forms.values())
+        return gradient
 
 
 def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:

@@ -8,12 +8,14 @@ At q* a vertex's elastic forces depend on its element's parameters only through 
 
 so a rest change found at unit stiffness can be moved into the boxes by raising the multiplier k
 and dividing the change by it, without changing c. ``asc`` starts per-element stiffness this way
-(solvers.alm, the linear start).
+(solvers.alm, the linear start; ``spread_rest_change``), and the stabilization raises stiffness
+this way (``restiffen``; frontend.stabilize).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .parameters import STRAND_BLOCK
 from .problem import Problem
 
 
@@ -66,3 +68,42 @@ def spread_rest_change(problem: Problem, change: np.ndarray) -> np.ndarray:
             p[blocks["stretch_stiffness"]] = k
         p[ix] = rest_strain(rest_strain(u) / k)
     return np.clip(p, lower, upper)
+
+
+def restiffen(problem: Problem, p: np.ndarray, stiffness: np.ndarray) -> np.ndarray:
+    """p with its stiffness multipliers replaced by those of ``stiffness`` (same layout; only the
+    stiffness entries are read) and each element's rest shape moved to keep its forces at q*:
+    kbar' - kappa* = (kbar - kappa*) k / k', the same for the rest twist, strain' = strain k / k'.
+    Where the matching rest block is not optimized the forces change with k.
+    """
+    layout, blocks = problem.layout, problem.blocks
+    p0 = layout.p0
+    old, new = np.asarray(p, dtype=float), p.copy()
+    n_inner = problem.n_vertices - 2
+
+    def ratio(block: str, count: int) -> np.ndarray:
+        """k / k' per element of a block of ``count`` elements (1 where the block is not optimized)."""
+        if STRAND_BLOCK in blocks:
+            ix = blocks[STRAND_BLOCK]
+            return np.full(count, old[ix][0] / stiffness[ix][0])
+        if block in blocks:
+            ix = blocks[block]
+            new[ix] = stiffness[ix]
+            return old[ix] / stiffness[ix]
+        return np.ones(count)
+
+    bend = ratio("bend_stiffness", n_inner)
+    twist = bend if layout.couple_twist and "twist_stiffness" not in blocks else ratio("twist_stiffness", n_inner)
+    stretch = ratio("stretch_stiffness", problem.n_vertices - 1)
+    if STRAND_BLOCK in blocks:
+        new[blocks[STRAND_BLOCK]] = stiffness[blocks[STRAND_BLOCK]]
+    if "rest_curvature" in blocks:
+        ix = blocks["rest_curvature"]
+        new[ix] = p0[ix] + (old[ix] - p0[ix]) * np.repeat(bend, 2)
+    if "rest_twist" in blocks:
+        ix = blocks["rest_twist"]
+        new[ix] = p0[ix] + (old[ix] - p0[ix]) * twist
+    if "rest_length" in blocks:
+        ix = blocks["rest_length"]
+        new[ix] = rest_strain(rest_strain(old[ix]) * stretch)
+    return new

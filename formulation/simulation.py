@@ -73,6 +73,9 @@ ARMIJO = 1e-4
 MAX_HALVINGS = 4
 #: Tolerance of sag_check: below the round-off floor, so that Newton always steps.
 CHECK_TOLERANCE = 1e-12
+#: push_check: the push (largest vertex displacement over L), the run's length (s) and time step (s).
+#: 5 s is several periods of the slowest stable modes and ~20 e-foldings of the mildest saddle seen.
+PUSH, PUSH_DURATION, PUSH_DT = 1e-3, 5.0, 1e-2
 #: Tangent turn (rad) above which the reference frames are re-based on the current iterate.
 REBASE_ANGLE = np.radians(60.0)
 
@@ -209,13 +212,9 @@ def roundoff_floor(problem: Problem, p: np.ndarray) -> float:
 
 
 def generalized_masses(problem: Problem) -> np.ndarray:
-    """Lumped mass per DOF (4n-1): m_i (kg) on positions, rho pi r^4 l0_j / 2 (kg m^2) on th_j."""
-    strand = problem.strand
-    n = problem.n_vertices
-    mass = np.empty(problem.q_star.size)
-    mass[dofs.position_index(n)] = problem.masses[:, None]
-    mass[dofs.theta_index(n)] = 0.5 * strand.density * np.pi * strand.radius**4 * problem.edge_lengths
-    return mass
+    """Lumped mass per DOF (4n-1): m_i (kg) on positions, rho pi r^4 l0_j / 2 (kg m^2) on th_j
+    (Problem.dof_masses)."""
+    return problem.dof_masses
 
 
 def _quadratic_form(band: np.ndarray, d: np.ndarray) -> float:
@@ -345,22 +344,26 @@ def equilibrium(problem: Problem, p, tol: float = RESIDUAL_TOLERANCE, max_steps:
 
 def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
              root_motion: Callable[[float], np.ndarray] | None = None, tol: float = RESIDUAL_TOLERANCE,
-             max_newton: int = 50) -> Simulation:
+             max_newton: int = 50, start: np.ndarray | None = None) -> Simulation:
     """Implicit-Euler run of ``steps`` steps of ``dt`` seconds from rest at q* (module docstring).
 
     damping: mass-proportional damping rate c, 1/s (0: none). root_motion: translation (m, 3-vector)
-    of the prescribed root vertices at time t (s); None keeps the root where q* has it. The run stops
-    early if a state becomes non-finite; ``converged`` tells whether every step's Newton converged.
+    of the prescribed root vertices at time t (s); None keeps the root where q* has it. start: the
+    state at t = 0 (4n-1; at rest; None: q*), e.g. a pushed q*. The run stops early if a state
+    becomes non-finite; ``converged`` tells whether every step's Newton converged.
     """
     if steps < 0 or not dt > 0 or not damping >= 0:
         raise ValueError(f"need steps >= 0, dt > 0 and damping >= 0; got {steps}, {dt}, {damping}")
-    start = time.perf_counter()
+    clock = time.perf_counter()
     p = problem.check_parameters(p)
     weight = generalized_masses(problem) * (1.0 / dt**2 + damping / dt)
     scales = newton_scales(problem, p)
     n = problem.n_vertices
     root = [i for i in dofs.position_index(n).ravel() if i < problem.first_free]
-    q, v, frames = problem.q_star.copy(), np.zeros_like(problem.q_star), problem.frames
+    q = problem.q_star.copy() if start is None else np.asarray(start, dtype=float).copy()
+    if q.shape != problem.q_star.shape:
+        raise ValueError(f"start must have {problem.q_star.size} entries (4n-1), got {q.size}")
+    v, frames = np.zeros_like(problem.q_star), problem.frames
     states, solves = [q], []
     for step in range(1, steps + 1):
         target = q + dt * v / (1.0 + damping * dt)
@@ -380,17 +383,57 @@ def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: f
     displacement = np.max(np.linalg.norm(positions - problem.strand.points, axis=2), axis=1)
     sag = float(displacement.max())
     return Simulation(positions, states[:, dofs.theta_index(n)], dt * np.arange(len(states)), displacement,
-                      sag, sag / problem.strand.length, solves, dt, time.perf_counter() - start)
+                      sag, sag / problem.strand.length, solves, dt, time.perf_counter() - clock)
+
+
+@dataclass
+class Push:
+    """A pushed strand: q* moved by ``push`` L along its softest mode, then simulated.
+
+    push: the push, max vertex displacement over L; eigenvalue: the mode's (s^-2); deviation: max
+    vertex displacement from q* over L at the end of the run; peak: its maximum over the run;
+    holds: it came back within its push (deviation <= push) and every Newton solve converged.
+    """
+
+    push: float
+    eigenvalue: float
+    deviation: float
+    peak: float
+    holds: bool
+    simulation: Simulation
+
+
+def push_check(problem: Problem, p, push: float = PUSH, duration: float = PUSH_DURATION,
+               dt: float = PUSH_DT) -> Push:
+    """Push the rest state along its softest mode (``Problem.stability``'s eigenvector, scaled so that
+    the largest vertex displacement is ``push`` L) and integrate ``duration`` seconds of implicit
+    Euler from rest there: a stable rest state swings back (implicit Euler only damps), a saddle
+    point grows like exp(sqrt(-lambda) t) and leaves. A run from q* alone cannot see a saddle: it
+    leaves only once rounding has grown, seconds later.
+    """
+    p = problem.check_parameters(p)
+    eigenvalue, mode = problem.stability(p, vector=True)
+    length = problem.strand.length
+    reach = float(np.max(np.linalg.norm(dofs.positions(mode), axis=1)))
+    if reach > 1e-12 * np.abs(mode).max():
+        scale = push * length / reach
+    else:  # a pure twist mode: push the angles by ``push`` rad
+        scale = push / np.abs(mode).max()
+    run = simulate(problem, p, steps=int(round(duration / dt)), dt=dt, start=problem.q_star + scale * mode)
+    deviation = float(run.displacement[-1]) / length
+    return Push(push, eigenvalue, deviation, run.relative_sag, bool(run.converged and deviation <= push), run)
 
 
 @dataclass
 class SagCheck:
-    """Forward check of one strand's parameters (``sagfree simulate``): an implicit-Euler run from rest
-    at q* and the static equilibrium from q*.
+    """Forward check of one strand's parameters (``sagfree simulate``, studies): an implicit-Euler run
+    from rest at q*, the static equilibrium from q*, and a push along the softest mode (push_check).
 
     sag: max vertex displacement over the run (m); relative_sag: over L; static_sag: the static
     equilibrium's displacement over L (NaN if it did not converge); converged: both solvers
-    converged; newton: mean Newton steps per time step; message: what went wrong, if anything.
+    converged; newton: mean Newton steps per time step; push: the pushed run's displacement at its
+    end over L (NaN if not pushed); holds: it came back within its push (push_check); message: what
+    went wrong, if anything.
     """
 
     sag: float
@@ -400,6 +443,8 @@ class SagCheck:
     newton: float
     time: float
     message: str = ""
+    push: float = float("nan")
+    holds: bool = False
 
     def sags(self, threshold: float) -> bool:
         """Whether the strand moves by more than ``threshold`` strand lengths (or was not checked)."""
@@ -408,8 +453,9 @@ class SagCheck:
 
 
 def sag_check(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
-              tol: float = CHECK_TOLERANCE) -> SagCheck:
-    """Run ``simulate`` and ``equilibrium`` on ``p`` and summarize them as a SagCheck.
+              tol: float = CHECK_TOLERANCE, push: bool = True) -> SagCheck:
+    """Run ``simulate`` and ``equilibrium`` on ``p`` (and ``push_check`` with its defaults, unless
+    ``push`` is False) and summarize them as a SagCheck.
 
     The default ``tol`` lies below the round-off floor, so Newton takes at least one step at every
     time step even where q* already satisfies RESIDUAL_TOLERANCE: the check shows what a simulator
@@ -418,6 +464,7 @@ def sag_check(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: 
     start = time.perf_counter()
     run = simulate(problem, p, steps, dt, damping, tol=tol)
     static = equilibrium(problem, p, tol=tol)
+    pushed = push_check(problem, p) if push else None
     problems = []
     if not run.converged:
         failed = next((k for k, s in enumerate(run.newton) if not s.converged), len(run.newton))
@@ -425,7 +472,11 @@ def sag_check(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: 
         problems.append(f"time step {failed + 1}: {detail}")
     if not static.converged:
         problems.append(f"static solve: {static.newton.message}")
+    if pushed is not None and not pushed.holds:
+        problems.append(f"pushed by {pushed.push:g} L along its softest mode ({pushed.eigenvalue:.3g} s^-2), it "
+                        f"ends {pushed.deviation:.3g} L away")
     return SagCheck(run.sag, run.relative_sag, static.relative_sag if static.converged else float("nan"),
                     run.converged and static.converged,
                     float(run.newton_iterations.mean()) if run.newton else 0.0,
-                    time.perf_counter() - start, "; ".join(problems))
+                    time.perf_counter() - start, "; ".join(problems),
+                    pushed.deviation if pushed else float("nan"), bool(pushed and pushed.holds))

@@ -45,6 +45,7 @@ class DemoSummary:
     wall_time: dict[str, float]            # solver -> seconds for its batch
     statuses: dict[str, dict[str, int]]    # solver -> status -> strands
     still: dict[str, tuple[int, int]]      # solver -> (strands within STILL of L, strands simulated)
+    holds: dict[str, tuple[int, int]]      # solver -> (strands that hold after a push, strands simulated)
     checks_passed: int
     checks_total: int
     seconds: float
@@ -100,6 +101,7 @@ def run_demo(out_dir: str | os.PathLike = "sagfree-demo", progress: bool = True,
         files.markdown, files.pdf, len(strands), sum(s.n_vertices for s in strands),
         {c.solver: c.wall for c in study.cases}, {c.solver: status_counts(c.results) for c in study.cases},
         {c.solver: (sum(not ch.sags(STILL) for ch in c.checks), len(c.checks)) for c in study.cases},
+        {c.solver: (sum(ch.holds for ch in c.checks), len(c.checks)) for c in study.cases},
         passed, len(rows), time.perf_counter() - start)
 
 

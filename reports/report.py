@@ -5,7 +5,8 @@ Tables (one row per case = scene x mode x solver, aggregated over its strands):
 2. parameters: stiffening per block (max and mean ratio to the specified value, share of elements
    above 1.01) and the largest rest-shape change per block (as a share of its box half-width);
 3. forward check: sag in simulation and in the static solve (over L), strands that stay within
-   1e-6 L, Newton steps per time step, smallest Hessian eigenvalue, stable rest states;
+   1e-6 L, strands that hold after a push along their softest mode, Newton steps per time step, the
+   smallest mass-normalized eigenvalue (s^-2), stable rest states;
 4. every solver against ``asc`` on the same strands: time ratio and R gap;
 5. per strand (small studies only): the numbers of each Result and SagCheck.
 Then the figures (figures module) and the versions of everything that produced the numbers. Every
@@ -21,6 +22,7 @@ import numpy as np
 from matplotlib.image import imread
 
 from sagfree.contract.result import iteration_summary, status_summary
+from sagfree.formulation.simulation import PUSH, PUSH_DT, PUSH_DURATION
 
 from .document import Document, Figure, Heading, Paragraph, Table, to_markdown, write_pdf
 from .environment import versions
@@ -83,7 +85,9 @@ def check_rows(study: Study) -> list[list]:
     for c in study.cases:
         checks, res = c.checks, c.results
         still = sum(not ch.sags(STILL) for ch in checks)
+        holds = sum(ch.holds for ch in checks)
         rows.append([c.scene, c.mode, c.solver, f"{still}/{len(checks)}" if checks else "-",
+                     f"{holds}/{len(checks)}" if checks else "-", _nanmax(ch.push for ch in checks),
                      _nanmax(ch.relative_sag for ch in checks), _nanmax(ch.static_sag for ch in checks),
                      float(np.mean([ch.newton for ch in checks])) if checks else float("nan"),
                      float(np.nanmin([r.min_eigenvalue for r in res])) if res else float("nan"),
@@ -108,7 +112,7 @@ def comparison_rows(study: Study) -> list[list]:
 
 
 STRAND_COLUMNS = ("scene", "strand", "mode", "solver", "status", "time_s", "residual_inf", "max_force_N",
-                  "objective", "bend_max", "sag", "static_sag", "min_eigenvalue")
+                  "objective", "bend_max", "sag", "static_sag", "holds", "min_eigenvalue_s-2")
 
 
 def strand_rows(study: Study) -> list[list]:
@@ -151,11 +155,15 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
                "rest curvature", "rest twist"], parameter_rows(study)))
     if any(c.checks for c in study.cases):
         doc.add(Heading("Forward check"), Paragraph(
-            f"`still`: strands that moved at most {STILL:g} of their length both in simulation and in the "
-            "static solve. Sags are maxima over the strands, relative to the strand length. The smallest "
-            "eigenvalue of the free-DOF Hessian at the groomed shape is positive for a stable rest state."),
-            Table(["scene", "mode", "solver", "still", "max sag / L", "max static sag / L",
-                   "Newton per step", "min eigenvalue", "stable"], check_rows(study)))
+            f"`still`: strands that moved at most {STILL:g} of their length both in simulation from rest and "
+            f"in the static solve. `hold`: strands pushed by {PUSH:g} L along their softest mode that are back "
+            f"within their push after {PUSH_DURATION:g} s of implicit Euler (steps of {PUSH_DT * 1e3:g} ms); "
+            "`push / L`: the largest deviation left at the end. Sags are maxima over the strands, relative to "
+            "the strand length. `min eigenvalue`: the smallest mass-normalized eigenvalue of the free-DOF "
+            "Hessian at the groomed shape (omega^2 of the slowest mode, s^-2), positive for a stable rest "
+            "state; `stable`: strands where it is."),
+            Table(["scene", "mode", "solver", "still", "hold", "push / L", "max sag / L", "max static sag / L",
+                   "Newton per step", "min eigenvalue (s^-2)", "stable"], check_rows(study)))
     compared = comparison_rows(study)
     if compared:
         doc.add(Heading("Against asc"), Paragraph(

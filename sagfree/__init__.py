@@ -19,7 +19,8 @@ if _util.find_spec("sagfree.formulation") is None:  # e.g. PYTHONPATH=. from a c
 from sagfree import scenes  # noqa: E402
 from sagfree.contract.result import Result  # noqa: E402
 from sagfree.formulation import Problem, Strand  # noqa: E402
-from sagfree.formulation.simulation import Equilibrium, Simulation, equilibrium, simulate  # noqa: E402
+from sagfree.formulation.simulation import (Equilibrium, Push, Simulation, equilibrium,  # noqa: E402
+                                            push_check, simulate)
 from sagfree.frontend.batch import optimize  # noqa: E402
 from sagfree.frontend.options import InvalidOption  # noqa: E402
 from sagfree.frontend.solve import solve  # noqa: E402
@@ -28,4 +29,5 @@ from sagfree.scenes.catalog import load, save  # noqa: E402
 
 __version__ = "0.1.0"
 __all__ = ["Problem", "Strand", "Result", "SOLVERS", "SolverUnavailable", "InvalidOption", "solve", "optimize",
-           "simulate", "equilibrium", "Simulation", "Equilibrium", "load", "save", "scenes", "__version__"]
+           "simulate", "equilibrium", "push_check", "Simulation", "Equilibrium", "Push", "load", "save", "scenes",
+           "__version__"]

@@ -1,7 +1,8 @@
 """The ``sagfree`` command line (DESIGN section 10).
 
 Exit codes: 0 success; 1 a check failed (``demo``, ``check``: a derivative mismatch; ``optimize``:
-a strand did not converge; ``simulate``: a strand moved more than ``--max-sag`` or was not checked;
+a strand did not converge; ``simulate``: a strand moved more than ``--max-sag``, fell after a push or
+was not checked;
 ``report``: ``asc`` did not converge on a strand); 2 bad usage or unreadable input.
 """
 from __future__ import annotations
@@ -31,7 +32,9 @@ def _demo(args) -> int:
     for solver, statuses in summary.statuses.items():
         counts = ", ".join(f"{k} {v}" for k, v in statuses.items() if v)
         still, simulated = summary.still[solver]
-        print(f"{solver:10} {summary.wall_time[solver]:7.2f} s   {counts:34} still in simulation {still}/{simulated}")
+        holds, _ = summary.holds[solver]
+        print(f"{solver:10} {summary.wall_time[solver]:7.2f} s   {counts:34} still {still}/{simulated}, "
+              f"hold after a push {holds}/{simulated}")
     print(f"derivative checks: {summary.checks_passed}/{summary.checks_total} passed")
     print(f"demo took {summary.seconds:.0f} s; wrote {summary.report} and {summary.pdf}")
     return 0 if summary.checks_passed == summary.checks_total else 1
@@ -56,7 +59,7 @@ def _check(args) -> int:
 
 
 def _problem_options(args) -> dict:
-    return {"stiffness": args.stiffness, "curvature": args.curvature}
+    return {"stiffness": args.stiffness, "curvature": args.curvature, "stabilize": not args.no_stabilize}
 
 
 def _solver_options(args) -> dict:
@@ -109,6 +112,10 @@ def _optimize(args) -> int:
     save_parameters(args.output, strands, results, args.solver, options)
     checkpoint.remove()
     print(f"{len(results)} strands with {args.solver} in {wall:.2f} s: {status_summary(results)}")
+    eigenvalues = [r.min_eigenvalue for r in results if r.min_eigenvalue == r.min_eigenvalue]
+    if eigenvalues:
+        print(f"stable rest states {sum(r.stable for r in results)}/{len(results)}; smallest eigenvalue "
+              f"{min(eigenvalues):.3g} s^-2 (omega^2 of the slowest mode)")
     for k, r in enumerate(results):
         if r.status != "converged":
             print(f"  strand {k}: {r.status}: {r.message}")
@@ -124,23 +131,31 @@ def _simulate(args) -> int:
     strands = load(args.input, args.units, keep_invalid=True)
     params = load_parameters(args.params)
     params.check_matches(strands, args.input)
+    from sagfree.formulation.simulation import PUSH, PUSH_DURATION
+
+    push = not args.no_push
     checks = simulate_strands(strands, params.p, args.steps, args.dt, args.damping, jobs=args.jobs,
-                              progress=not args.quiet, scheduler=args.scheduler, **params.problem_options)
+                              progress=not args.quiet, scheduler=args.scheduler, push=push,
+                              **params.problem_options)
     header = (f"{'strand':>6} {'vertices':>8} {'optimized':>10} {'sag (m)':>10} {'sag / L':>9} "
-              f"{'static / L':>10} {'newton':>6}  verdict")
-    print(f"{len(strands)} strands, {args.steps} implicit-Euler steps of {args.dt:g} s from rest, "
-          f"then the static equilibrium; parameters by {params.solver}")
+              f"{'static / L':>10} {'push / L':>9} {'newton':>6}  verdict")
+    print(f"{len(strands)} strands, {args.steps} implicit-Euler steps of {args.dt:g} s from rest, then the static "
+          f"equilibrium" + (f", then {PUSH_DURATION:g} s after a push of {PUSH:g} L along the softest mode"
+                            if push else "") + f"; parameters by {params.solver}")
     print(header)
     print("-" * len(header))
-    moving = 0
+    moving = falling = 0
     for k, (strand, status, check) in enumerate(zip(strands, params.status, checks)):
-        verdict = "moves" if check.sags(args.max_sag) else "still"
+        verdict = ("moves" if check.sags(args.max_sag) else "falls after a push" if push and not check.holds
+                   else "holds" if push else "still")
         moving += verdict == "moves"
+        falling += verdict == "falls after a push"
         print(f"{k:>6} {strand.n_vertices:>8} {status:>10} {check.sag:>10.3g} {check.relative_sag:>9.2e} "
-              f"{check.static_sag:>10.2e} {check.newton:>6.1f}  {verdict}"
+              f"{check.static_sag:>10.2e} {check.push:>9.2e} {check.newton:>6.1f}  {verdict}"
               + (f" ({check.message})" if check.message else ""))
-    print(f"\n{len(strands) - moving}/{len(strands)} strands stay within {args.max_sag:g} of their length")
-    return 1 if moving else 0
+    print(f"\n{len(strands) - moving}/{len(strands)} strands stay within {args.max_sag:g} of their length"
+          + (f"; {sum(c.holds for c in checks)}/{len(strands)} hold after a push" if push else ""))
+    return 1 if moving or falling else 0
 
 
 def _input_arguments(command) -> None:
@@ -228,6 +243,8 @@ def parser() -> argparse.ArgumentParser:
     opt.add_argument("--stiffness", default="element", choices=("element", "strand", "fixed"),
                      help="stiffness per element, one per strand, or fixed (default element)")
     opt.add_argument("--curvature", default="4d", choices=VARIANTS, help="curvature variant (default 4d)")
+    opt.add_argument("--no-stabilize", action="store_true",
+                     help="the bare problem: converged strands need not be stable rest states")
     opt.add_argument("--resume", action="store_true",
                      help="continue an interrupted run from OUT.partial/ instead of starting over")
     _batch_arguments(opt)
@@ -241,6 +258,8 @@ def parser() -> argparse.ArgumentParser:
     sim.add_argument("--params", required=True, metavar="FILE", help="parameters file from 'sagfree optimize'")
     _simulation_arguments(sim)
     sim.add_argument("--damping", type=float, default=0.0, help="mass-proportional damping in 1/s (default 0)")
+    sim.add_argument("--no-push", action="store_true",
+                     help="skip the push along each strand's softest mode (5 s of simulation per strand)")
     sim.add_argument("--max-sag", type=float, default=1e-6,
                      help="largest displacement, relative to strand length, that counts as still (default 1e-6)")
     _batch_arguments(sim)

@@ -183,7 +183,7 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
         {"strand": k, "vertices": int(counts[k]), "status": r.status, "message": r.message,
          "residual_inf": r.residual_inf, "max_force_N": r.max_force, "objective": r.objective,
          "time_s": r.time, "iterations": r.iterations, "stiffening": r.stiffening,
-         "min_eigenvalue": r.min_eigenvalue, "stable": r.stable} for k, r in enumerate(results)]}
+         "min_eigenvalue_s-2": r.min_eigenvalue, "stable": r.stable} for k, r in enumerate(results)]}
     text = json.dumps(_finite_or_none(summary), indent=1, allow_nan=False)
     write_atomically(Path(path).with_suffix(".json"), lambda f: f.write(text.encode()))
 

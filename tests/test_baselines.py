@@ -85,7 +85,7 @@ def test_kkt_measure_matches_a_dense_reference_and_separates_optimal_from_feasib
     problem = sagfree.Problem(sagfree.scenes.curly(n=30), stiffness="strand")
     optimum = sagfree.solve(problem).p
     # feasible but not optimal: the optimum of a different regularizer
-    other = sagfree.solve(problem.with_options(weights={"rest_twist": 100.0})).p
+    other = sagfree.solve(problem.with_options(weights={"rest_twist": 1e4})).p
     assert np.abs(problem.residual(other)).max() <= 1e-8
     for p in (optimum, other):
         assert kkt_optimality(problem, p) == pytest.approx(dense_kkt_step(problem, p), rel=1e-4, abs=1e-9)

@@ -93,9 +93,10 @@ def test_import_from_a_clone_without_installing_says_to_install(tmp_path):
 
 
 def test_default_groom_results_unchanged_by_the_layout():
-    """p of groom(20, 50, seed=0) with asc equals the copy stored before the shared layer moved out of
-    solvers/ (bit-identical on the machine that made it; 1e-12 leaves room for another CPU's
-    rounding, far below any change of method)."""
+    """p of groom(20, 50, seed=0) with asc equals the stored copy: a guard that moving code changes no
+    result (first stored before the shared layer moved out of solvers/, bit-identical after the move;
+    stored anew when the problem itself changed: the regularizer's length shares and the stability
+    floors). 1e-12 leaves room for another CPU's rounding, far below any change of method."""
     stored = np.load(ROOT / "tests" / "data" / "groom_20_50_seed0_asc.npz")
     results = sagfree.optimize(sagfree.scenes.groom(20, 50, seed=0), solver="asc", jobs=1)
     assert [r.status for r in results] == list(stored["status"])

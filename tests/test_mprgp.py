@@ -136,7 +136,7 @@ def scaled_projected_gradient(H, b, lower, upper, x):
 
 
 def test_active_set_prelude_cuts_the_factorizations_of_groom_gauss_newton_qps(monkeypatch):
-    """On the element-stiffness Gauss-Newton QPs of a 200-vertex groom strand, the primal-dual
+    """On the element-stiffness Gauss-Newton QPs of 200-vertex groom strands, the primal-dual
     active-set prelude reaches the KKT point as MPRGP alone does, with fewer factorizations."""
     captured = []
 
@@ -145,8 +145,8 @@ def test_active_set_prelude_cuts_the_factorizations_of_groom_gauss_newton_qps(mo
         return solve_box_qp(H, b, lower, upper, **options)
 
     monkeypatch.setattr(alm, "solve_box_qp", capture)
-    strand = sagfree.scenes.groom(3, 200, seed=1)[0]
-    assert sagfree.solve(sagfree.Problem(strand)).status == "converged"
+    for strand in sagfree.scenes.groom(3, 200, seed=1):
+        assert sagfree.solve(sagfree.Problem(strand)).status == "converged"
     banded = [qp for qp in captured if qp[0].corner.shape[0] == 0]
     assert len(banded) >= 5
     totals = {0: 0, None: 0}

@@ -1,6 +1,7 @@
 """The equilibrium problem: residual, forces, Jacobian, parameters (DESIGN sections 3, 4, 10)."""
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.sparse as sp
 
 import sagfree
@@ -239,18 +240,44 @@ def test_user_bounds_weights_and_budgets():
     assert np.allclose(pb.upper[ix] - pb.lower[ix], 0.5 * (default.upper[ix] - default.lower[ix]))
     p = pb.p0
     p[pb.blocks["bend_stiffness"][0]] = 2.0
-    assert pb.objective(p) == pytest.approx(0.5 * 5.0)
+    # the weight times vertex 1's share of the strand's length (its Voronoi length over L)
+    share = 0.5 * (pb.edge_lengths[0] + pb.edge_lengths[1]) / pb.edge_lengths.sum()
+    assert pb.objective(p) == pytest.approx(0.5 * 5.0 * share)
     with pytest.raises(ValueError, match="unknown parameter blocks"):
         sagfree.Problem(sagfree.scenes.horizontal(n=8), optimize=("rest_lenght",))
     with pytest.raises(ValueError, match="unknown curvature variant"):
         sagfree.Problem(sagfree.scenes.horizontal(n=8), curvature="3d")
 
 
+def dense_stability(pb, p):
+    """Smallest eigenvalue of H_F v = lambda M_F v, dense (scipy), and its eigenvector."""
+    dense = pb.hessian(p)[pb.free][:, pb.free].toarray()
+    values, vectors = scipy.linalg.eigh(dense, np.diag(pb.dof_masses[pb.free]))
+    return values[0], vectors[:, 0]
+
+
 def test_stability_of_the_straight_rest_state():
+    """Mass-normalized: omega^2 of the slowest mode, the Euler-Bernoulli cantilever's 1.875^4 E I /
+    (rho A L^4) with the clamped length measured from the middle of the clamped first edge."""
     pb = sagfree.Problem(sagfree.scenes.horizontal(n=12))
-    assert pb.stability(pb.p0) > 0
-    dense = pb.hessian(pb.p0)[pb.free][:, pb.free].toarray()
-    assert pb.stability(pb.p0) == pytest.approx(np.linalg.eigvalsh(dense)[0], rel=1e-6)
+    value, _ = dense_stability(pb, pb.p0)
+    assert value > 0 and pb.stability(pb.p0) == pytest.approx(value, rel=1e-6)
+    strand = pb.strand
+    free_length = strand.length - 0.5 * pb.edge_lengths[0]
+    beam = 1.875**4 * strand.youngs_modulus * strand.radius**2 / (4 * strand.density * free_length**4)
+    assert pb.stability(pb.p0) == pytest.approx(beam, rel=0.01)
+
+
+def test_stability_mode_is_the_mass_normalized_eigenvector():
+    pb = sagfree.Problem(sagfree.scenes.curly(n=15))
+    p = pb.p0.copy()
+    p[pb.blocks["rest_length"]] = 0.02
+    value, mode = pb.stability(p, vector=True)
+    dense_value, dense_mode = dense_stability(pb, p)
+    assert value == pytest.approx(dense_value, rel=1e-6)
+    assert np.all(mode[~pb.free] == 0)
+    assert mode @ (pb.dof_masses * mode) == pytest.approx(1.0)
+    assert abs(mode[pb.free] @ (pb.dof_masses[pb.free] * dense_mode)) == pytest.approx(1.0, rel=1e-6)
 
 
 def test_stability_of_a_compressed_rest_state_is_its_negative_eigenvalue():
@@ -259,7 +286,6 @@ def test_stability_of_a_compressed_rest_state_is_its_negative_eigenvalue():
     pb = sagfree.Problem(sagfree.scenes.horizontal(n=12))
     p = pb.p0.copy()
     p[pb.blocks["rest_length"]] = 0.05
-    dense = pb.hessian(p)[pb.free][:, pb.free].toarray()
-    smallest = np.linalg.eigvalsh(dense)[0]
+    smallest, _ = dense_stability(pb, p)
     assert smallest < 0
     assert pb.stability(p) == pytest.approx(smallest, rel=1e-6)

@@ -44,7 +44,8 @@ def test_markdown_tables_carry_the_numbers_of_the_results(tiny):
     for row, (case, k, result) in zip(per_strand, expected):
         assert row[:5] == [case.scene, str(k), case.mode, case.solver, result.status]
         assert row[6:9] == [cell(result.residual_inf), cell(result.max_force), cell(result.objective)]
-        assert row[11] == cell(case.checks[k].static_sag) and row[12] == cell(result.min_eigenvalue)
+        assert row[11] == cell(case.checks[k].static_sag) and row[12] == cell(case.checks[k].holds)
+        assert row[13] == cell(result.min_eigenvalue)
     convergence = table_rows(text, "scene | mode | solver | strands | statuses")
     for row, case in zip(convergence, study.cases):
         assert row[:4] == [case.scene, case.mode, case.solver, str(len(case.results))]
@@ -56,7 +57,8 @@ def test_markdown_tables_carry_the_numbers_of_the_results(tiny):
     checks = table_rows(text, "scene | mode | solver | still")
     asc = [row for row in checks if row[2] == "asc"]
     assert len(asc) == 4 and all(row[3] in ("1/1", "2/2") for row in asc)  # optimized strands stand still
-    assert all(row[3].startswith("0/") for row in checks if row[2] == "naive")
+    assert all(row[4] in ("1/1", "2/2") for row in asc)  # ... and hold after a push
+    assert all(row[3].startswith("0/") and row[4].startswith("0/") for row in checks if row[2] == "naive")
 
 
 def test_pdf_is_a_multi_page_document_with_the_tables_and_figures(tiny):

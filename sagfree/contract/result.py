@@ -34,10 +34,14 @@ class Result:
     line_search, tightened); residual_inf: |c(p)|_inf (unit-free); max_force: largest residual force on a
     free vertex (N); objective: R(p); stiffening: per stiffness block {max, mean, stiffened} (ratio to the
     specified stiffness, share of elements above 1.01); rest_change: per rest block {max, mean} absolute
-    change from p0 and {box} the largest change over the box half-width; time (s); min_eigenvalue of the
-    free-DOF Hessian at q* and stable = min_eigenvalue > 0; history: |c|_inf after each primal step;
+    change from p0 and {box} the largest change over the box half-width; time (s); min_eigenvalue: the
+    mass-normalized smallest eigenvalue of the free-DOF Hessian at q* (Problem.stability: omega^2 of
+    the slowest mode, s^-2) and stable = min_eigenvalue > 0; history: |c|_inf after each primal step;
     physical: the parameters in physical units (Problem.physical: rest lengths m, rest curvatures, rest
-    twists rad, moduli Pa).
+    twists rad, moduli Pa); floors: the lower bounds of the problem p solves when the stabilization
+    raised stiffness floors (frontend.stabilize; ``problem.with_lower_bounds(floors)`` is that
+    problem), else None; static_sag: for an ``infeasible`` strand, the static sag of p over L
+    (formulation.simulation.equilibrium; NaN otherwise).
     """
 
     solver: str
@@ -55,6 +59,8 @@ class Result:
     stable: bool
     history: list[float] = field(default_factory=list)
     physical: dict[str, np.ndarray] = field(default_factory=dict)
+    floors: np.ndarray | None = None
+    static_sag: float = float("nan")
 
     @property
     def success(self) -> bool:
@@ -65,7 +71,8 @@ class Result:
         stiff = ", ".join(f"{k} max {v['max']:.3g}" for k, v in self.stiffening.items())
         return (f"Result(solver={self.solver!r}, status={self.status!r}, |c|_inf={self.residual_inf:.3g}, "
                 f"max_force={self.max_force:.3g} N, R={self.objective:.6g}, {counts}, "
-                f"time={self.time:.3g} s, stable={self.stable}{', ' + stiff if stiff else ''})\n"
+                f"time={self.time:.3g} s, min_eigenvalue={self.min_eigenvalue:.3g} s^-2, stable={self.stable}"
+                f"{', ' + stiff if stiff else ''})\n"
                 f"  message: {self.message}")
 
 
@@ -101,7 +108,8 @@ def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, 
 
 
 def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, message: str,
-                iterations: dict[str, int], time: float, history: list[float] | None = None) -> Result:
+                iterations: dict[str, int], time: float, history: list[float] | None = None,
+                floors: np.ndarray | None = None) -> Result:
     """Measure ``p`` on ``problem`` and package it; appends the stability verdict to the message."""
     if status not in STATUSES:
         raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
@@ -109,12 +117,12 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
     eigenvalue = problem.stability(p)
     stable = bool(eigenvalue > 0)
     if status == "converged" and not stable:
-        message += (f"; the rest state is UNSTABLE (smallest Hessian eigenvalue {eigenvalue:.3g}): "
-                    "a simulation will leave q*")
+        message += (f"; the rest state is UNSTABLE (smallest eigenvalue {eigenvalue:.3g} s^-2): a push "
+                    "grows and the strand leaves q*")
     return Result(solver, p, status, message, dict(iterations),
                   float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
                   problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
-                  time, eigenvalue, stable, list(history or []), problem.physical(p))
+                  time, eigenvalue, stable, list(history or []), problem.physical(p), floors)
 
 
 def status_counts(results: list[Result]) -> dict[str, int]:

@@ -27,6 +27,7 @@ from sagfree.formulation.simulation import SagCheck, sag_check
 from sagfree.formulation.strand import Strand
 
 from .options import check_options, check_problem_options
+from .stabilize import solve_stabilized
 from .table import solver_entry
 
 #: Seconds a strand may take before a batch on worker processes declares its chunk hung.
@@ -43,7 +44,7 @@ def solve_strand(strand: Strand, solver: str = "asc", solver_options: dict | Non
     except Exception as exc:  # noqa: BLE001 - reported in the Result, the batch goes on
         return failed_result(solver, f"invalid strand or options: {exc}", time=time.perf_counter() - start)
     try:
-        return solver_entry(solver).function(problem, **(solver_options or {}))
+        return solve_stabilized(solver_entry(solver).function, problem, solver_options or {})
     except Exception as exc:  # noqa: BLE001
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
         return failed_result(solver, f"{solver} raised {detail}", problem.n_parameters,
@@ -159,34 +160,34 @@ def _solve(strand, solver, solver_options, problem_options) -> Result:
     return solve_strand(strand, solver, solver_options, **problem_options)
 
 
-def _check(strand, p, problem_options, steps, dt, damping) -> SagCheck:
+def _check(strand, p, problem_options, steps, dt, damping, push) -> SagCheck:
     """sag_check of one strand; a strand without parameters or that fails gets a record saying why."""
     start = time.perf_counter()
     nan = float("nan")
     if p is None or not np.all(np.isfinite(p)):
         return SagCheck(nan, nan, nan, False, 0.0, 0.0, "no parameters (its optimization failed)")
     try:
-        return sag_check(Problem(strand, **problem_options), p, steps, dt, damping)
+        return sag_check(Problem(strand, **problem_options), p, steps, dt, damping, push=push)
     except Exception as exc:  # noqa: BLE001 - reported per strand, the batch goes on
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
         return SagCheck(nan, nan, nan, False, 0.0, time.perf_counter() - start, detail)
 
 
 def simulate_strands(strands, parameters, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
-                     jobs: int | None = None, progress: bool = False, scheduler=None,
+                     jobs: int | None = None, progress: bool = False, scheduler=None, push: bool = True,
                      **problem_options) -> list[SagCheck]:
     """Forward-check every strand's parameters (formulation.simulation.sag_check) on all cores.
 
-    parameters: one p per strand (None or NaN: not checked); jobs, scheduler and problem_options as
-    for ``optimize``.
+    parameters: one p per strand (None or NaN: not checked); push: also push each strand along its
+    softest mode (push_check); jobs, scheduler and problem_options as for ``optimize``.
     """
     check_problem_options(problem_options)
     strands, parameters = list(strands), list(parameters)
     if len(strands) != len(parameters):
         raise ValueError(f"{len(strands)} strands but {len(parameters)} parameter vectors")
     nan = float("nan")
-    return map_strands(_check, list(zip(strands, parameters)), (problem_options, steps, dt, damping), jobs,
-                       progress, "simulate", partial(_unchecked, nan), scheduler)
+    return map_strands(_check, list(zip(strands, parameters)), (problem_options, steps, dt, damping, push),
+                       jobs, progress, "simulate", partial(_unchecked, nan), scheduler)
 
 
 def _unchecked(nan: float, message: str) -> SagCheck:

@@ -5,11 +5,13 @@ from sagfree.contract.result import Result
 from sagfree.formulation.problem import Problem
 
 from .options import check_options
+from .stabilize import solve_stabilized
 from .table import solver_entry
 
 
 def solve(problem: Problem, solver: str = "asc", **options) -> Result:
     """Solve one strand's problem with ``solver`` (a name of SOLVERS); ``options`` are checked against
-    the solver's (frontend.options) before it runs."""
+    the solver's (frontend.options) before it runs. With ``problem.stabilize`` (the default) the
+    solution is a stable rest state (frontend.stabilize)."""
     entry = solver_entry(solver)
-    return entry.function(problem, **check_options(solver, options))
+    return solve_stabilized(entry.function, problem, check_options(solver, options))

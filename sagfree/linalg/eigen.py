@@ -25,6 +25,11 @@ MAX_STEPS = 300
 
 def smallest_eigenvalue(band: np.ndarray) -> float:
     """lambda_min of the symmetric matrix with LAPACK lower band storage band[k, j] = H[j + k, j]."""
+    return smallest_eigenpair(band)[0]
+
+
+def smallest_eigenpair(band: np.ndarray) -> tuple[float, np.ndarray]:
+    """(lambda_min, its unit eigenvector) of the symmetric matrix in lower band storage."""
     band = np.asarray(band, dtype=float)
     n = band.shape[1]
     if n == 0:
@@ -34,18 +39,21 @@ def smallest_eigenvalue(band: np.ndarray) -> float:
     while (factor := band_cholesky(band, shift)) is None:  # ends: a large shift makes it diagonally dominant
         shift = max(10.0 * shift, start)
     v0 = np.random.default_rng(0).standard_normal(n)
-    return float(1.0 / _largest_inverse_eigenvalue(factor, v0, min(MAX_STEPS, n), TOLERANCE) - shift)
+    theta, vector = _largest_inverse_eigenpair(factor, v0, min(MAX_STEPS, n), TOLERANCE)
+    return float(1.0 / theta - shift), vector / np.linalg.norm(vector)
 
 
 @numba.njit(cache=True)
-def _largest_inverse_eigenvalue(factor, v0, steps, tolerance):  # pragma: no cover - compiled
-    """Largest eigenvalue of (L L^T)^-1 by Lanczos with full reorthogonalization."""
+def _largest_inverse_eigenpair(factor, v0, steps, tolerance):  # pragma: no cover - compiled
+    """Largest eigenvalue of (L L^T)^-1 and its Ritz vector, by Lanczos with full reorthogonalization."""
     n = v0.size
     basis = np.zeros((steps + 1, n))
     alpha, beta = np.zeros(steps), np.zeros(steps)
     basis[0] = v0 / np.sqrt(np.dot(v0, v0))
     w = np.empty(n)
     theta = 0.0
+    ritz = np.zeros(steps)
+    last = 0
     for k in range(steps):
         plain_solve(factor, basis[k], w)
         alpha[k] = np.dot(w, basis[k])
@@ -57,7 +65,9 @@ def _largest_inverse_eigenvalue(factor, v0, steps, tolerance):  # pragma: no cov
             tridiagonal[i, i + 1] = tridiagonal[i + 1, i] = beta[i]
         values, vectors = np.linalg.eigh(tridiagonal)
         theta = values[k]
+        ritz[:k + 1] = vectors[:, k]
+        last = k
         if abs(beta[k] * vectors[k, k]) <= tolerance * abs(theta) or beta[k] == 0.0:
             break
         basis[k + 1] = w / beta[k]
-    return theta
+    return theta, ritz[:last + 1] @ basis[:last + 1]

@@ -1,0 +1,71 @@
+"""Long hair the boxes cannot balance: the default groom scaled 5x and 10x (DESIGN section 4, best effort).
+
+    python benchmarks/bench_long_hair.py [--scales 5,10] [--strands 100] [--jobs N]
+
+Every strand of the default groom is scaled about its root (same radius and material), solved with
+``asc`` (element stiffness, default boxes, stabilization on), and the static sag of its parameters is
+compared with that of the naive parameters and of the predecessor (``penalty-gn``), all measured in
+this run: per scale, the statuses, the share of strands whose sag is below naive's, and the mean sag
+ratios.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from collections import Counter
+
+import numpy as np
+
+import sagfree
+from sagfree.formulation.simulation import equilibrium
+from sagfree.frontend.batch import map_strands
+
+
+def scaled(strand: sagfree.Strand, factor: float) -> sagfree.Strand:
+    points = strand.points[0] + factor * (strand.points - strand.points[0])
+    return sagfree.Strand(points, radius=strand.radius, youngs_modulus=strand.youngs_modulus,
+                          shear_modulus=strand.shear_modulus, density=strand.density)
+
+
+def static_sags(strand: sagfree.Strand, p_asc, p_predecessor) -> tuple[float, float, float]:
+    """Static sag over L of asc's, naive and the predecessor's parameters (NaN where it fails)."""
+    problem = sagfree.Problem(strand)
+    out = []
+    for p in (p_asc, problem.p0, p_predecessor):
+        static = equilibrium(problem, p)
+        out.append(static.relative_sag if static.converged else float("nan"))
+    return tuple(out)
+
+
+def _unchecked(message: str):
+    return (float("nan"),) * 3
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scales", default="5,10")
+    parser.add_argument("--strands", type=int, default=100)
+    parser.add_argument("--jobs", type=int, default=None)
+    args = parser.parse_args()
+    groom = sagfree.scenes.default_groom()[: args.strands]
+    print("scale  lengths (cm)   asc statuses                     time s  sag < naive  "
+          "mean sag/naive  mean sag / mean naive  mean sag/penalty-gn  stable")
+    for factor in (float(s) for s in args.scales.split(",")):
+        strands = [scaled(s, factor) for s in groom]
+        start = time.perf_counter()
+        ours = sagfree.optimize(strands, jobs=args.jobs)
+        wall = time.perf_counter() - start
+        predecessor = sagfree.optimize(strands, solver="penalty-gn", jobs=args.jobs)
+        sags = np.array(map_strands(static_sags, [(s, a.p, b.p) for s, a, b in zip(strands, ours, predecessor)],
+                                    jobs=args.jobs, on_crash=_unchecked))
+        asc, naive, pgn = sags.T
+        statuses = ", ".join(f"{k} {v}" for k, v in Counter(r.status for r in ours).items())
+        lengths = [s.length * 100 for s in strands]
+        print(f"{factor:5g}  {min(lengths):5.0f}-{max(lengths):<5.0f}   {statuses:32} {wall:7.1f}  "
+              f"{np.sum(asc < naive):4d}/{len(strands):<4d}  {np.nanmean(asc / naive):14.3f}  "
+              f"{np.nanmean(asc) / np.nanmean(naive):21.3f}  {np.nanmean(asc / pgn):19.3f}  "
+              f"{sum(r.stable for r in ours)}/{len(ours)}")
+
+
+if __name__ == "__main__":
+    main()

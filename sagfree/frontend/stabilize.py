@@ -1,0 +1,172 @@
+"""Stable rest states for every solver: the stabilized problem and its loop (DESIGN section 4).
+
+A converged strand must be a STABLE rest state: ``problem.stability(p) >= problem.stability_margin``
+(mass-normalized smallest eigenvalue, s^-2). At q* the internal moments are fixed by statics, so the
+Hessian is a fixed stress term plus sum_j k_j G_j (G_j PSD): only stiffness restores stability, the
+smallest eigenvalue is concave in the multipliers k, and a rise of k_j that keeps k_j (kbar_j -
+kappa*) (formulation.rest_change.restiffen) keeps c = 0. Self-weight buckling of strands that point
+upward is what the boxes alone never prevent.
+
+The stabilized problem is the bare one with stiffness FLOORS: lower bounds on the multipliers that
+make its optimum stable. They are found by a cutting-plane loop on the bare problem (``floors_loop``):
+
+1. solve; if the solution is stable (lambda >= margin), done;
+2. otherwise raise the lower bounds of the multipliers that matter (d lambda / d k above RELEVANT of
+   the largest) along the least-R step that the eigenvalue's first-order model says lifts it to
+   OVERSHOOT x the margin: dk = t g / h, g = d lambda / d k (Problem.stiffening_gradient), h the
+   regularizer's curvature w a of each multiplier (lambda is concave in k, so the model is
+   optimistic and the overshoot saves rounds);
+3. solve the floored problem from the solver's own start again, and repeat.
+
+The floors of a strand must not depend on the solver, or solvers would be compared on different
+problems: the floored problems are nonconvex like the bare one, and two solvers' intermediate optima
+(hence their floors) can differ. So the floors are always found by the loop with ``asc`` (fast; its
+time counts in every solver's), and any other solver then solves the floored problem, warm-started
+from its own bare solution raised onto the floors with the forces kept (restiffen). With ``asc`` the
+loop's last solve is the answer. A strand whose stabilizing multipliers are all at their upper
+bounds cannot be stabilized inside the boxes: ``infeasible``, saying so. Iterations of every solve
+are summed; ``stabilization`` counts the loop's rounds.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from sagfree.contract.result import Result, make_result
+from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
+from sagfree.formulation.problem import Problem
+from sagfree.formulation.rest_change import restiffen
+from sagfree.formulation.simulation import equilibrium
+from sagfree.solvers import solve_alm
+
+#: Rounds of floors raised and solves repeated before giving up (status max_iterations).
+MAX_ROUNDS = 10
+#: The first-order step aims at this multiple of the margin (lambda is concave in the multipliers).
+OVERSHOOT = 1.25
+#: Multipliers whose d lambda / d k is below this share of the largest are left alone (a floor a
+#: hair above the solution's value would only add nearly active bounds).
+RELEVANT = 1e-3
+
+
+def solve_stabilized(function, problem: Problem, options: dict) -> Result:
+    """``function(problem, **options)``, stabilized by the loop of the module docstring; an
+    ``infeasible`` result also gets its static sag (with_static_sag)."""
+    result = _stabilized(function, problem, options)
+    return with_static_sag(problem, result) if result.status == "infeasible" else result
+
+
+def with_static_sag(problem: Problem, result: Result) -> Result:
+    """The Result with the static sag of its parameters (over L, from q*) in ``static_sag`` and its
+    message, next to the naive parameters': what the best effort of an infeasible strand buys."""
+    ours, naive = (equilibrium(problem, p) for p in (result.p, problem.p0))
+    sag = ours.relative_sag if ours.converged else float("nan")
+    note = (f"; static sag {sag:.3g} L (naive: {naive.relative_sag:.3g} L)" if ours.converged
+            else f"; the static solve did not converge ({ours.newton.message})")
+    return dataclasses.replace(result, static_sag=sag, message=result.message + note)
+
+
+def _stabilized(function, problem: Problem, options: dict) -> Result:
+    clock = time.perf_counter()
+    result = function(problem, **options)
+    stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    if (not problem.stabilize or not stiffness.any() or result.status not in ("converged", "infeasible")
+            or result.min_eigenvalue >= problem.stability_margin):
+        return result
+    first_objective, counts, history = result.objective, dict(result.iterations), list(result.history)
+    if function is solve_alm:
+        floored, result, rounds, verdict = floors_loop(solve_alm, problem, options, result)
+        counts = _add(counts, result.iterations)
+    else:  # the floors of asc's loop, then this solver on the floored problem from its own solution
+        floored, _, rounds, _ = floors_loop(solve_alm, problem, {})
+        start = restiffen(floored, result.p, np.maximum(result.p, floored.layout.lower))
+        result = function(floored, **{**options, "p_start": start})
+        counts = _add(counts, result.iterations)
+        value = floored.stability(result.p)
+        verdict = None
+        if value < problem.stability_margin and result.status in ("converged", "infeasible"):
+            verdict = ("infeasible" if result.status == "infeasible" else "failed",
+                       f"{result.message}; not stable with asc's stiffness floors: smallest eigenvalue {value:.3g} "
+                       f"s^-2 < margin {problem.stability_margin:.3g} s^-2 (another local optimum)")
+    history += result.history
+    counts["stabilization"] = rounds
+    status, message = verdict if verdict else (result.status, result.message)
+    message += _floors_note(problem, floored, rounds, first_objective, result.objective)
+    return make_result(problem, result.p, result.solver, status, message, counts, time.perf_counter() - clock,
+                       history, floored.layout.lower.copy())
+
+
+def floors_loop(function, problem: Problem, options: dict, result: Result | None = None):
+    """(floored problem, its last Result, rounds, verdict) of the loop of the module docstring with
+    ``function``, from ``result`` (its solution of the bare problem; solved here if None). The last
+    Result's iterations are those of the loop's own solves. verdict: None when the last solution is
+    stable, else (status, message)."""
+    result = function(problem, **options) if result is None else result
+    stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    margin = problem.stability_margin
+    current, rounds, counts = problem, 0, {}
+    while True:
+        value, mode = current.stability(result.p, vector=True)
+        if value >= margin:
+            verdict = None
+            break
+        if result.status not in ("converged", "infeasible"):
+            verdict = (result.status, f"stabilization round {rounds}: {result.message}")
+            break
+        if rounds == MAX_ROUNDS:  # an infeasible strand stays infeasible; else a limit was reached
+            verdict = ("infeasible" if result.status == "infeasible" else "max_iterations",
+                       f"{result.message}; not stable after {MAX_ROUNDS} rounds of stiffness floors: smallest "
+                       f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2")
+            break
+        gradient = current.stiffening_gradient(result.p, mode)
+        room = stiffness & (result.p < current.layout.upper)
+        room &= gradient > RELEVANT * gradient[room].max(initial=0.0)
+        if not room.any():
+            verdict = ("infeasible", f"{result.message}; cannot be stabilized inside the boxes: smallest "
+                       f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2 and every stiffness multiplier that "
+                       "would raise it is at its upper bound; relax the stiffness bounds")
+            break
+        curvature = current.layout.weights[room] + 1e-12
+        step = (OVERSHOOT * margin - value) / float(np.sum(gradient[room] ** 2 / curvature))
+        floors = current.layout.lower.copy()
+        floors[room] = np.maximum(floors[room], np.minimum(result.p[room] + step * gradient[room] / curvature,
+                                                           current.layout.upper[room]))
+        current = current.with_lower_bounds(floors)
+        result = function(current, **options)
+        counts = _add(counts, result.iterations)
+        rounds += 1
+    return current, dataclasses.replace(result, iterations=counts), rounds, verdict
+
+
+def _add(counts: dict, more: dict) -> dict:
+    return {name: counts.get(name, 0) + more.get(name, 0) for name in {**counts, **more}}
+
+
+def _floors_note(problem: Problem, stabilized: Problem, rounds: int, before: float, after: float) -> str:
+    """Where the stiffness floors rose, and what they cost in R."""
+    raised = np.flatnonzero(stabilized.layout.lower > problem.layout.lower)
+    where: dict[str, list[str]] = {}
+    for index in raised:
+        block, element = problem.layout.locate(int(index))
+        where.setdefault(block, []).append(element.split()[-1])
+    places = "; ".join(f"{block} at {_ranges(elements)}" for block, elements in where.items())
+    change = (after - before) / before if before else np.inf
+    return (f"; stabilized in {rounds} round{'s' if rounds != 1 else ''}: stiffness floors raised "
+            f"({places or 'none'}), R {change:+.2%}")
+
+
+def _ranges(elements: list[str]) -> str:
+    """'1-4, 7' from ['1', '2', '3', '4', '7'] (a strand multiplier: 'strand')."""
+    if not all(e.isdigit() for e in elements):
+        return ", ".join(elements)
+    numbers, spans = sorted(int(e) for e in elements), []
+    start = previous = numbers[0]
+    for number in numbers[1:] + [None]:
+        if number is not None and number == previous + 1:
+            previous = number
+            continue
+        spans.append(f"{start}-{previous}" if previous > start else f"{start}")
+        if number is not None:
+            start = previous = number
+    return ", ".join(spans)

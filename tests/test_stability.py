@@ -1,0 +1,124 @@
+"""Stable rest states and best-effort answers (DESIGN section 4): the stabilization loop, its
+derivative, the push check, infeasible strands, and a regularizer that does not grow with n."""
+import numpy as np
+import pytest
+
+import sagfree
+from sagfree.contract.optimality import KKT_TOL, kkt_optimality
+from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
+from sagfree.formulation.rest_change import restiffen
+from sagfree.formulation.simulation import equilibrium, push_check
+
+#: strands of the default groom that are saddle points of the bare problem's optimum (self-weight
+#: buckling of strands that point upward)
+UNSTABLE = (1, 11)
+
+
+@pytest.fixture(scope="module")
+def groom():
+    return sagfree.scenes.default_groom()
+
+
+@pytest.mark.parametrize("k", UNSTABLE)
+def test_unstable_optimum_is_stabilized_and_holds_after_a_push(groom, k):
+    problem = sagfree.Problem(groom[k])
+    bare = sagfree.solve(problem.with_options(stabilize=False))
+    assert bare.status == "converged" and bare.min_eigenvalue < 0 and not bare.stable
+    assert "UNSTABLE" in bare.message and bare.floors is None
+    result = sagfree.solve(problem)
+    assert result.status == "converged", result.message
+    assert result.min_eigenvalue >= problem.stability_margin > 0 and result.stable
+    assert result.iterations["stabilization"] >= 1 and "stabilized in" in result.message
+    # optimal for the problem it solved: the same one with the stiffness floors as lower bounds
+    floored = problem.with_lower_bounds(result.floors)
+    assert np.abs(problem.residual(result.p)).max() <= 1e-8
+    assert np.all(result.p >= floored.lower) and kkt_optimality(floored, result.p) <= KKT_TOL
+    stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    assert np.all(result.floors[~stiffness] == problem.lower[~stiffness])  # only stiffness floors rise
+    assert result.objective > bare.objective
+    # the saddle falls away from q* after a push; the stabilized strand swings back
+    assert not push_check(problem, bare.p).holds
+    pushed = push_check(problem, result.p)
+    assert pushed.holds and pushed.deviation <= 1e-3 and pushed.simulation.converged
+
+
+@pytest.mark.parametrize("options, strands", [(dict(stiffness="strand"), (55, 84)),
+                                              (dict(couple_twist=False), (3, 4))])
+def test_stabilization_in_strand_mode_and_with_uncoupled_twist(groom, options, strands):
+    """One multiplier for the strand (strand mode) is raised as a whole; without the coupling gamma
+    stays at G, more optima are saddles, and the bend and twist multipliers rise separately."""
+    for k in strands:
+        problem = sagfree.Problem(groom[k], **options)
+        bare = sagfree.solve(problem.with_options(stabilize=False))
+        assert bare.status == "converged" and not bare.stable
+        result = sagfree.solve(problem)
+        assert result.status == "converged", result.message
+        assert result.min_eigenvalue >= problem.stability_margin and result.iterations["stabilization"] >= 1
+        assert kkt_optimality(problem.with_lower_bounds(result.floors), result.p) <= KKT_TOL
+
+
+@pytest.mark.parametrize("options", [dict(), dict(couple_twist=False), dict(stiffness="strand")])
+def test_stiffening_gradient_matches_finite_differences_along_restiffen(groom, options):
+    """d lambda / d k along the moment-preserving move (Problem.stiffening_gradient) against central
+    differences of Problem.stability; the move itself keeps c."""
+    problem = sagfree.Problem(groom[1], stabilize=False, **options)
+    p = sagfree.solve(problem).p
+    value, mode = problem.stability(p, vector=True)
+    gradient = problem.stiffening_gradient(p, mode)
+    stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    assert np.all(gradient[~stiffness] == 0) and np.all(gradient[stiffness] >= -1e-6 * gradient.max())
+    relevant = stiffness & (gradient > 1e-3 * gradient.max())  # the multipliers the loop raises
+    direction = np.where(relevant, np.random.default_rng(1).uniform(0.0, 1.0, p.size), 0.0)
+    h = 1e-4
+    moved = [restiffen(problem, p, p + s * h * direction) for s in (1, -1)]
+    for q in moved:  # exact for bend and twist; the stretch term's rest lengths move the bend prefactor
+        assert np.abs(problem.residual(q)).max() <= 1e-2 * h
+    finite = (problem.stability(moved[0]) - problem.stability(moved[1])) / (2 * h)
+    assert finite == pytest.approx(gradient @ direction, rel=2e-3)
+
+
+def test_margin_is_a_tenth_of_the_unstressed_strands_eigenvalue_unless_given():
+    strand = sagfree.scenes.horizontal(n=20)
+    problem = sagfree.Problem(strand)
+    assert problem.stability_margin == pytest.approx(0.1 * problem.stability(problem.p0))
+    assert sagfree.Problem(strand, min_eigenvalue=3.0).stability_margin == 3.0
+    with pytest.raises(ValueError, match="min_eigenvalue"):
+        sagfree.Problem(strand, min_eigenvalue=float("nan"))
+
+
+def test_every_solver_reaches_the_same_stabilized_optimum(groom):
+    """Ipopt runs the same loop (frontend.stabilize) around its own solves and reaches ours."""
+    problem = sagfree.Problem(groom[11])
+    ours, ipopt = sagfree.solve(problem, "asc"), sagfree.solve(problem, "ipopt")
+    for result in (ours, ipopt):
+        assert result.status == "converged", result.message
+        assert result.min_eigenvalue >= problem.stability_margin
+        assert result.iterations["stabilization"] >= 1
+    assert ipopt.objective == pytest.approx(ours.objective, rel=1e-6)
+
+
+def test_best_effort_for_a_strand_the_boxes_cannot_balance(groom):
+    """The default groom's strand 5 at 5 times its length (60 cm): infeasible, with the least residual
+    force the box allows; it sags clearly less than naive and than the predecessor."""
+    strand = groom[5]
+    long = sagfree.Strand(strand.points[0] + 5.0 * (strand.points - strand.points[0]), radius=strand.radius,
+                          youngs_modulus=strand.youngs_modulus, shear_modulus=strand.shear_modulus,
+                          density=strand.density)
+    problem = sagfree.Problem(long)
+    result = sagfree.solve(problem)
+    assert result.status == "infeasible"
+    assert "Binding:" in result.message and "static sag" in result.message
+    naive = sagfree.solve(problem, "naive")
+    predecessor = sagfree.solve(problem, "penalty-gn")
+    residual = np.linalg.norm(problem.residual(result.p))
+    assert residual < 0.75 * np.linalg.norm(problem.residual(naive.p))
+    sags = [equilibrium(problem, p).relative_sag for p in (result.p, naive.p, predecessor.p)]
+    assert result.static_sag == pytest.approx(sags[0], rel=1e-6)
+    assert sags[0] < 0.7 * sags[1] and sags[0] < 0.7 * sags[2]
+
+
+def test_regularizer_converges_with_resolution():
+    """R weighs each element by its share of the length: the same strand's R at 200 and 400
+    vertices agrees within 5% (a per-element sum doubled with n)."""
+    values = [sagfree.solve(sagfree.Problem(sagfree.scenes.curly(n=n))).objective for n in (200, 400)]
+    assert values[1] == pytest.approx(values[0], rel=0.05)
