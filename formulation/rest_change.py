@@ -107,3 +107,12 @@ def restiffen(problem: Problem, p: np.ndarray, stiffness: np.ndarray) -> np.ndar
         ix = blocks["rest_length"]
         new[ix] = rest_strain(rest_strain(old[ix]) * stretch)
     return new
+
+
+def stiffest(problem: Problem, p: np.ndarray) -> np.ndarray:
+    """p restiffened to the upper bounds of its bend, twist and strand multipliers: the same forces at
+    q* (``restiffen``; the rest shape moves toward q*, so it stays in its box), with the stiffest
+    strand the boxes allow. Where gravity cannot be balanced, the same residual force then deflects
+    the strand least (the best effort of solvers.alm)."""
+    stiffness = problem.layout.block_mask(("bend_stiffness", "twist_stiffness", STRAND_BLOCK))
+    return restiffen(problem, p, np.where(stiffness, problem.layout.upper, p))

@@ -41,9 +41,11 @@ Infeasible: once mu has reached 10^4 mu0 and either the best box-constrained Gau
     |c|^2 alone reduces |c| by less than 1% (p is a stationary point of the constraint violation
     inside the box) or |c|_inf is still above STALLED_VIOLATION (the penalty crawls), the best effort
     takes over (least_residual): the parameters inside the box with the least residual
-    force |c|^2 (each DOF's force over its weight: weighted least squares), the least R among them,
-    so the strand sags as little as the boxes allow; if that point balances gravity after all, the
-    augmented Lagrangian goes on from it. The message names the bounds that bind (the blocks and
+    force |c|^2 (each DOF's force over its weight: weighted least squares), then, among those with
+    the same forces, the stiffest the boxes allow (rest_change.stiffest): at equal residual force
+    stiffness is what reduces the sag, which is what a user sees (it halved the static sag of the
+    least-R choice on some long-hair strands; measurements in benchmarks/RESULTS.md). If the least
+    residual balances gravity after all, the augmented Lagrangian goes on from it. The message names the bounds that bind (the blocks and
     vertices whose relaxation would reduce |c|), so a user knows what to relax.
 The measurements behind these choices are in benchmarks/RESULTS.md.
 """
@@ -58,7 +60,7 @@ from sagfree.contract.result import Result, make_result
 from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.parameters import REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
-from sagfree.formulation.rest_change import spread_rest_change
+from sagfree.formulation.rest_change import spread_rest_change, stiffest
 from sagfree.linalg.band import column_norms, gram
 from sagfree.linalg.saddle import constrained_step
 
@@ -261,15 +263,18 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             if mu >= 1e4 * mu0:
                 verdict = _infeasibility(problem, p, c, J, lower, upper)
                 if verdict or violation > STALLED_VIOLATION:
-                    # best effort: the least residual the box allows, then the least R
+                    # best effort: the least residual the box allows, at the largest stiffness
                     p = least_residual(problem, [p, problem.p0], counts, qp_rtol)
                     c, J = problem.residual(p), problem.strand_jacobian(p)
                     scale = gradient_scale(model.w, J)
                     history.append(float(np.abs(c).max(initial=0.0)))
                     if history[-1] > tol:
-                        return finish("infeasible", _infeasibility(problem, p, c, J, lower, upper) or verdict or
-                                      f"infeasible within bounds: |c|_inf stalls at {history[-1]:.3g} (a local "
-                                      "minimum of the residual inside the box)")
+                        verdict = _infeasibility(problem, p, c, J, lower, upper) or verdict or (
+                            f"infeasible within bounds: |c|_inf stalls at {history[-1]:.3g} (a local minimum of "
+                            "the residual inside the box)")
+                        p = stiffest(problem, p)
+                        return finish("infeasible", verdict + "; best effort: the least residual force the box "
+                                      "allows, at the largest stiffness it allows")
                     # the least residual balances gravity after all: go on from there
                     estimate = least_squares_multipliers(model.w * (p - model.p0), J, scale, p, lower, upper)
                     lam = estimate if np.all(np.isfinite(estimate)) else np.zeros_like(lam)
