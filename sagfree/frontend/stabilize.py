@@ -11,8 +11,8 @@ The stabilized problem is the bare one with stiffness FLOORS: lower bounds on th
 make its optimum stable. They are found by a cutting-plane loop on the bare problem (``floors_loop``):
 
 1. solve; if the solution is stable (lambda >= margin), done;
-2. otherwise raise the lower bounds of the multipliers that matter (d lambda / d k above RELEVANT of
-   the largest) along the least-R step that the eigenvalue's first-order model says lifts it to
+2. otherwise raise the lower bounds of the multipliers that matter and are below their upper bounds
+   (d lambda / d k above RELEVANT of the largest of all multipliers) along the least-R step that the eigenvalue's first-order model says lifts it to
    OVERSHOOT x the margin: dk = t g / h, g = d lambda / d k (Problem.stiffening_gradient), h the
    regularizer's curvature w a of each multiplier (lambda is concave in k, so the model is
    optimistic and the overshoot saves rounds);
@@ -121,7 +121,7 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
             break
         gradient = current.stiffening_gradient(result.p, mode)
         room = stiffness & (result.p < current.layout.upper)
-        room &= gradient > RELEVANT * gradient[room].max(initial=0.0)
+        room &= gradient > RELEVANT * gradient[stiffness].max(initial=0.0)
         if not room.any():
             verdict = ("infeasible", f"{result.message}; cannot be stabilized inside the boxes: smallest "
                        f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2 and every stiffness multiplier that "
