@@ -169,7 +169,8 @@ class Problem:
         return self.layout.size
 
     def objective(self, p) -> float:
-        """Regularizer R(p) = 1/2 sum_j w_j (p_j - p0_j)^2 (dimensionless)."""
+        """Regularizer R(p) = 1/2 sum_j w_b(j) a_j (p_j - p0_j)^2 (dimensionless; a_j the element's share
+        of the strand's length, parameters module)."""
         return self.layout.regularizer(self.check_parameters(p))
 
     def objective_gradient(self, p) -> np.ndarray:
@@ -343,7 +344,7 @@ class Problem:
         p = self.check_parameters(p)
         edge, vertex = self.stencil_inputs(p, None, None)
         strand = self.strand
-        (vertex_q, reference, geometry, physical), (edge_q, edge_geometry, edge_physical) = vertex, edge
+        (vertex_q, reference, geometry, physical), (edge_q, edge_geometry, _) = vertex, edge
         unstressed = physical.copy()
         unstressed[:, 2:4] = geometry[:, 4:6]  # kbar = kappa* (the 4d map adds the rotated pair)
         unstressed[:, 4] = geometry[:, 3]      # mbar = m*
