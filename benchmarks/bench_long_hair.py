@@ -3,10 +3,13 @@
     python benchmarks/bench_long_hair.py [--scales 5,10] [--strands 100] [--jobs N]
 
 Every strand of the default groom is scaled about its root (same radius and material), solved with
-``asc`` (element stiffness, default boxes, stabilization on), and the static sag of its parameters is
-compared with that of the naive parameters and of the predecessor (``penalty-gn``), all measured in
-this run: per scale, the statuses, the strands whose sag is below naive's (among those whose static
-solves all converged: a long strand that flips over can defeat Newton), and the mean sag ratios.
+``asc`` (element stiffness, default boxes, stabilization on; an infeasible strand gets the least
+static sag, solvers.least_sag), and the static sag of its parameters is compared with that of the
+naive parameters and of the predecessor (``penalty-gn``), all measured in this run: per scale, the
+statuses, the strands whose sag is below naive's (among those whose static solves all converged: a
+long strand that flips over can defeat Newton), the mean sag ratios, and how many rest stably
+(``Result.stable``: where an infeasible strand rests). On a 2-core machine run it with
+OPENBLAS_NUM_THREADS=1: two workers that each start BLAS threads slow each other down several times.
 """
 from __future__ import annotations
 

@@ -257,14 +257,20 @@ class Problem:
         """dc/dp as a sparse (free DOFs x parameters) matrix, both axes in strand order (banded)."""
         return self.strand_jacobian(p).tocsc()
 
-    def strand_jacobian(self, p) -> StrandJacobian:
-        """dc/dp with compiled products (jacobian module): what the solvers iterate with. The vertex
-        stencils' blocks are (dk/dy)^T d(dE/dk)/d(physical) at q* (stencils.FixedShapeFunctions)."""
-        edge, vertex = self.stencil_inputs(p, None, None)
-        kinematics, transposed = self.kinematics_at_rest
-        (by_kinematics,) = self.vertex_fixed_functions.parameter_jacobian(kinematics, *vertex[2:])
+    def strand_jacobian(self, p, q=None, frames: Frames | None = None) -> StrandJacobian:
+        """dc/dp with compiled products (jacobian module): what the solvers iterate with. At q* (q and
+        frames None) the vertex stencils' blocks are (dk/dy)^T d(dE/dk)/d(physical) at q*
+        (stencils.FixedShapeFunctions); at another state q (frames as in ``energy``), the
+        derivative of c(q, p) = D^-1 S f(q, p) there (the best effort's static sag, solvers.least_sag)."""
+        edge, vertex = self.stencil_inputs(p, q, frames)
+        if q is None and frames is None:
+            kinematics, transposed = self.kinematics_at_rest
+            (by_kinematics,) = self.vertex_fixed_functions.parameter_jacobian(kinematics, *vertex[2:])
+            vertex_jacobian = transposed @ by_kinematics
+        else:
+            (vertex_jacobian,) = self.vertex_functions.parameter_jacobian(*vertex)
         return StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
-            self.edge_functions.parameter_jacobian(*edge)[0], transposed @ by_kinematics))
+            self.edge_functions.parameter_jacobian(*edge)[0], vertex_jacobian))
 
     def _hessian_blocks(self, p, q, frames):
         edge, vertex = self.stencil_inputs(p, q, frames)
@@ -304,8 +310,9 @@ class Problem:
         mass[dofs.theta_index(n)] = 0.5 * self.strand.density * np.pi * self.strand.radius**4 * self.edge_lengths
         return mass
 
-    def stability(self, p, vector: bool = False):
-        """Smallest eigenvalue omega^2 (s^-2) of the free-DOF energy Hessian at q*, mass-normalized:
+    def stability(self, p, vector: bool = False, q=None, frames: Frames | None = None):
+        """Smallest eigenvalue omega^2 (s^-2) of the free-DOF energy Hessian at q* (or at the state q,
+        frames as in ``energy``: where an infeasible strand rests), mass-normalized:
         the smallest lambda of H_F v = lambda M_F v with M the lumped inertia of ``dof_masses`` (DESIGN
         7). omega^2 of the slowest mode if positive (a stable rest state); if negative, a push grows
         like exp(sqrt(-lambda) t). Twist DOFs enter with their rotational inertia, as in the
@@ -316,7 +323,7 @@ class Problem:
         normalized so that v^T M v = 1. Linear in n: compiled shift-and-invert Lanczos on the scaled
         band M^-1/2 H M^-1/2 (linalg.eigen).
         """
-        band = self.hessian_band(p)[:, self.first_free:]
+        band = self.hessian_band(p, q, frames)[:, self.first_free:]
         scale = 1.0 / np.sqrt(self.dof_masses[self.first_free:])
         size = band.shape[1]
         scaled = np.zeros_like(band)

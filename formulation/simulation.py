@@ -98,7 +98,8 @@ class Equilibrium:
     """Static equilibrium found by Newton from q*.
 
     q: DOFs (4n-1); positions (n, 3), m; sag: max |x_i - x_i*| (m); relative_sag: sag / L;
-    newton: the solve's residual history and outcome; time (s).
+    newton: the solve's residual history and outcome; time (s); frames: the reference frames q's
+    energy is evaluated with (Problem.energy; re-based during the solve when tangents turned far).
     """
 
     q: np.ndarray
@@ -107,6 +108,7 @@ class Equilibrium:
     relative_sag: float
     newton: NewtonSolve
     time: float
+    frames: Frames
 
     @property
     def converged(self) -> bool:
@@ -331,15 +333,21 @@ def _displacement(problem: Problem, q: np.ndarray) -> float:
     return float(np.max(np.linalg.norm(dofs.positions(q) - problem.strand.points, axis=1)))
 
 
-def equilibrium(problem: Problem, p, tol: float = RESIDUAL_TOLERANCE, max_steps: int = 2000) -> Equilibrium:
-    """Static equilibrium that q* relaxes into (damped Newton from q*, module docstring), with its sag."""
-    start = time.perf_counter()
+def equilibrium(problem: Problem, p, tol: float = RESIDUAL_TOLERANCE, max_steps: int = 2000,
+                start: Equilibrium | None = None) -> Equilibrium:
+    """Static equilibrium that q* relaxes into (damped Newton from q*, module docstring), with its sag.
+
+    start: continue from another equilibrium of the same strand (its q and frames, Newton damped
+    from MU_MIN), e.g. that of nearby parameters: the branch followed as p changes (solvers.least_sag).
+    """
+    clock = time.perf_counter()
     p = problem.check_parameters(p)
-    potential = IncrementalPotential(problem, p, problem.frames)
-    q, record = newton_solve(potential, problem.q_star, tol, max_steps, mu=MU_STATIC)
+    q, frames, mu = (problem.q_star, problem.frames, MU_STATIC) if start is None else (start.q, start.frames, MU_MIN)
+    potential = IncrementalPotential(problem, p, frames)
+    q, record = newton_solve(potential, q, tol, max_steps, mu=mu)
     sag = _displacement(problem, q)
     return Equilibrium(q, dofs.positions(q), sag, sag / problem.strand.length, record,
-                       time.perf_counter() - start)
+                       time.perf_counter() - clock, potential.frames)
 
 
 def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,

@@ -7,6 +7,7 @@ import pytest
 import sagfree
 from sagfree.contract.optimality import KKT_TOL, kkt_optimality
 from sagfree.contract.result import STIFFENED
+from sagfree.formulation.simulation import equilibrium
 
 DATA = Path(__file__).parent / "data"
 
@@ -97,11 +98,11 @@ def test_over_tight_box_is_infeasible_quickly_with_a_clear_message():
     assert result.status == "infeasible"
     assert "bend_stiffness at its upper bound at vertex 1" in result.message
     assert "Relax" in result.message
-    assert result.time < 2.0 and result.iterations["gauss_newton"] < 60
-    # best effort: the least residual force the box allows, far below naive's (gravity unbalanced)
-    naive = sagfree.solve(problem, "naive")
-    assert result.iterations["least_residual"] > 0
-    assert np.linalg.norm(problem.residual(result.p)) < 0.5 * np.linalg.norm(problem.residual(naive.p))
+    assert result.iterations["gauss_newton"] < 60
+    # best effort: from the least residual force the box allows, the least static sag, far below naive's
+    assert result.iterations["least_residual"] > 0 and result.iterations["least_sag"] > 1
+    assert result.static_sag == pytest.approx(equilibrium(problem, result.p).relative_sag, rel=1e-9)
+    assert result.static_sag < 0.5 * equilibrium(problem, problem.p0).relative_sag
     fixed = sagfree.solve(sagfree.Problem(sagfree.scenes.horizontal(), stiffness="fixed"))
     assert fixed.status == "infeasible" and "rest_curvature at its upper bound" in fixed.message
 

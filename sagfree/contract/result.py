@@ -14,6 +14,7 @@ import numpy as np
 from sagfree.formulation import dofs
 from sagfree.formulation.parameters import REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
+from sagfree.formulation.simulation import Equilibrium
 
 #: converged: |c|_inf <= tol and KKT distance <= kkt_tol; infeasible: no point of the box balances
 #: the load; max_iterations: stopped at a limit (max_iterations, max_seconds or a solver's own);
@@ -36,12 +37,14 @@ class Result:
     specified stiffness, share of elements above 1.01); rest_change: per rest block {max, mean} absolute
     change from p0 and {box} the largest change over the box half-width; time (s); min_eigenvalue: the
     mass-normalized smallest eigenvalue of the free-DOF Hessian at q* (Problem.stability: omega^2 of
-    the slowest mode, s^-2) and stable = min_eigenvalue > 0; history: |c|_inf after each primal step;
+    the slowest mode, s^-2), for an ``infeasible`` strand at the static equilibrium where it rests,
+    and stable = min_eigenvalue > 0; history: |c|_inf after each primal step;
     physical: the parameters in physical units (Problem.physical: rest lengths m, rest curvatures, rest
     twists rad, moduli Pa); floors: the lower bounds of the problem p solves when the stabilization
     raised stiffness floors (frontend.stabilize; ``problem.with_lower_bounds(floors)`` is that
-    problem), else None; static_sag: for an ``infeasible`` strand, the static sag of p over L
-    (formulation.simulation.equilibrium; NaN otherwise).
+    problem), else None; static_sag: for an ``infeasible`` strand, the static sag of p over L (the
+    largest vertex displacement of the equilibrium q* relaxes into, formulation.simulation.equilibrium;
+    NaN otherwise).
     """
 
     solver: str
@@ -109,12 +112,14 @@ def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, 
 
 def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, message: str,
                 iterations: dict[str, int], time: float, history: list[float] | None = None,
-                floors: np.ndarray | None = None) -> Result:
-    """Measure ``p`` on ``problem`` and package it; appends the stability verdict to the message."""
+                floors: np.ndarray | None = None, rest: Equilibrium | None = None) -> Result:
+    """Measure ``p`` on ``problem`` and package it; appends the stability verdict to the message.
+    rest: where the strand rests if not at q* (an infeasible strand's static equilibrium): its
+    stability is measured there, and its sag over L goes to ``static_sag``."""
     if status not in STATUSES:
         raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
     p = np.asarray(p, dtype=float).copy()
-    eigenvalue = problem.stability(p)
+    eigenvalue = problem.stability(p) if rest is None else problem.stability(p, q=rest.q, frames=rest.frames)
     stable = bool(eigenvalue > 0)
     if status == "converged" and not stable:
         message += (f"; the rest state is UNSTABLE (smallest eigenvalue {eigenvalue:.3g} s^-2): a push "
@@ -122,7 +127,8 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
     return Result(solver, p, status, message, dict(iterations),
                   float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
                   problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
-                  time, eigenvalue, stable, list(history or []), problem.physical(p), floors)
+                  time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
+                  float("nan") if rest is None else rest.relative_sag)
 
 
 def status_counts(results: list[Result]) -> dict[str, int]:

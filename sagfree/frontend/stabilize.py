@@ -25,7 +25,9 @@ time counts in every solver's), and any other solver then solves the floored pro
 from its own bare solution raised onto the floors with the forces kept (restiffen). With ``asc`` the
 loop's last solve is the answer. A strand whose stabilizing multipliers are all at their upper
 bounds cannot be stabilized inside the boxes: ``infeasible``, saying so. Iterations of every solve
-are summed; ``stabilization`` counts the loop's rounds.
+are summed; ``stabilization`` counts the loop's rounds. A strand the boxes cannot balance (infeasible
+with a residual force) does not rest at q*, so floors that stabilize q* mean nothing for it: it gets
+the least static sag instead (frontend.best_effort), its stability measured where it rests.
 """
 from __future__ import annotations
 
@@ -34,12 +36,14 @@ import time
 
 import numpy as np
 
+from sagfree.contract.optimality import TOL
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
-from sagfree.formulation.simulation import equilibrium
 from sagfree.solvers import solve_alm
+
+from .best_effort import with_least_sag
 
 #: Rounds of floors raised and solves repeated before giving up (status max_iterations).
 MAX_ROUNDS = 10
@@ -52,26 +56,19 @@ RELEVANT = 1e-3
 
 def solve_stabilized(function, problem: Problem, options: dict) -> Result:
     """``function(problem, **options)``, stabilized by the loop of the module docstring; an
-    ``infeasible`` result also gets its static sag (with_static_sag)."""
+    ``infeasible`` result with a residual force left gets the least static sag of its box
+    (frontend.best_effort)."""
     result = _stabilized(function, problem, options)
-    return with_static_sag(problem, result) if result.status == "infeasible" else result
-
-
-def with_static_sag(problem: Problem, result: Result) -> Result:
-    """The Result with the static sag of its parameters (over L, from q*) in ``static_sag`` and its
-    message, next to the naive parameters': what the best effort of an infeasible strand buys."""
-    ours, naive = (equilibrium(problem, p) for p in (result.p, problem.p0))
-    sag = ours.relative_sag if ours.converged else float("nan")
-    note = (f"; static sag {sag:.3g} L (naive: {naive.relative_sag:.3g} L)" if ours.converged
-            else f"; the static solve did not converge ({ours.newton.message})")
-    return dataclasses.replace(result, static_sag=sag, message=result.message + note)
+    if result.status == "infeasible" and result.residual_inf > options.get("tol", TOL):
+        return with_least_sag(problem, result)
+    return result
 
 
 def _stabilized(function, problem: Problem, options: dict) -> Result:
     clock = time.perf_counter()
     result = function(problem, **options)
     stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
-    if (not problem.stabilize or not stiffness.any() or result.status not in ("converged", "infeasible")
+    if (not problem.stabilize or not stiffness.any() or result.status != "converged"
             or result.min_eigenvalue >= problem.stability_margin):
         return result
     first_objective, counts, history = result.objective, dict(result.iterations), list(result.history)
@@ -85,10 +82,9 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
         counts = _add(counts, result.iterations)
         value = floored.stability(result.p)
         verdict = None
-        if value < problem.stability_margin and result.status in ("converged", "infeasible"):
-            verdict = ("infeasible" if result.status == "infeasible" else "failed",
-                       f"{result.message}; not stable with asc's stiffness floors: smallest eigenvalue {value:.3g} "
-                       f"s^-2 < margin {problem.stability_margin:.3g} s^-2 (another local optimum)")
+        if value < problem.stability_margin and result.status == "converged":
+            verdict = ("failed", f"{result.message}; not stable with asc's stiffness floors: smallest eigenvalue "
+                       f"{value:.3g} s^-2 < margin {problem.stability_margin:.3g} s^-2 (another local optimum)")
     history += result.history
     counts["stabilization"] = rounds
     status, message = verdict if verdict else (result.status, result.message)
@@ -111,12 +107,11 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
         if value >= margin:
             verdict = None
             break
-        if result.status not in ("converged", "infeasible"):
+        if result.status != "converged":  # infeasible: the floors leave no balance (best effort follows)
             verdict = (result.status, f"stabilization round {rounds}: {result.message}")
             break
-        if rounds == MAX_ROUNDS:  # an infeasible strand stays infeasible; else a limit was reached
-            verdict = ("infeasible" if result.status == "infeasible" else "max_iterations",
-                       f"{result.message}; not stable after {MAX_ROUNDS} rounds of stiffness floors: smallest "
+        if rounds == MAX_ROUNDS:
+            verdict = ("max_iterations", f"{result.message}; not stable after {MAX_ROUNDS} rounds of stiffness floors: smallest "
                        f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2")
             break
         gradient = current.stiffening_gradient(result.p, mode)

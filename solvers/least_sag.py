@@ -1,0 +1,142 @@
+"""The best effort for a strand the boxes cannot balance: the least static sag inside the box.
+
+Where no p in the box makes q* an equilibrium (long fine hair: the moment its own weight exerts at
+the root exceeds what the stiffest, most pre-bent rest shape of the box can hold), the strand will
+rest elsewhere: at the static equilibrium q_s(p) that q* relaxes into (simulation.equilibrium). What
+a user sees is how far that is from the groom, so the best effort minimizes it directly:
+
+    S(p) = 1/2 sum_i (m_i / M) |x_i(q_s(p)) - x_i*|^2 / L^2      over lower <= p <= upper,
+
+the mass-weighted mean squared displacement (unit-free; m_i the vertex masses, M their sum). Its
+Jacobian follows from the equilibrium itself: f(q_s, p) = 0 gives
+
+    dq_s/dp = K^-1 D dc/dp                                                  (K d^2E/dq^2 at q_s)
+
+with c = D^-1 S f at q_s (``Problem.strand_jacobian(p, q, frames)``), one banded Cholesky of K and
+a solve per parameter. scipy's trust-region reflective least squares (``least_squares``, method
+"trf", which keeps every iterate inside the box; LSMR for its subproblems, where the exact solver's
+dense SVD grows like the cube of the size) takes the steps; each evaluation continues the
+equilibrium from the previous one (``equilibrium(start=...)``), so p moves along one branch of
+equilibria; where the continuation fails (CONTINUATION_STEPS Newton steps), the step was too long
+for it and the trust region shrinks. (A restart from q* costs 10-100 times more: the overdamped
+Newton of ``equilibrium`` follows the whole fall.)
+
+S weighs the whole strand, not only the vertex that moves most: smooth, and a Gauss-Newton problem;
+the reported sag (the largest displacement) falls with it (benchmarks/RESULTS.md). The start is the
+solver's own best effort (alm: the least residual force at q*, restiffened to the largest
+stiffness). The least sag lies where the box runs out, often next to a fold of the equilibria
+where the resting state turns soft, so the answer must rest STABLY: it is the visited point of
+least S whose equilibrium has its smallest mass-normalized eigenvalue at least
+``Problem.stability_margin``, confirmed by the equilibrium from q* (the one ``equilibrium`` finds
+and every report measures: stable, and sagging less than the start); VERIFIED candidates are tried
+in order of S, else the start stays.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from sagfree.formulation import dofs
+from sagfree.formulation.problem import Problem
+from sagfree.formulation.simulation import Equilibrium, equilibrium
+from sagfree.linalg.cholesky import band_cholesky
+
+#: Model evaluations (static solves) the minimization may take: enough for the large early gains,
+#: bounded so that a groom of long hair costs seconds per strand.
+MAX_EVALUATIONS = 60
+#: Candidates (visited stable points, least S first) confirmed by a static solve from q*.
+VERIFIED = 3
+#: Newton steps of a continued static solve before the step counts as too long.
+CONTINUATION_STEPS = 100
+
+
+@dataclass
+class LeastSag:
+    """The least-sag parameters and where they rest.
+
+    p: parameters inside the box; rest: the static equilibrium from q* of p (Equilibrium, the sag
+    a report measures); start: that of the starting parameters; evaluations: static solves taken;
+    newton: their Newton steps.
+    """
+
+    p: np.ndarray
+    rest: Equilibrium
+    start: Equilibrium
+    evaluations: int
+    newton: int
+
+
+class StaticSag:
+    """S(p) of the module docstring as scipy least-squares residuals, continuing the equilibrium."""
+
+    def __init__(self, problem: Problem, start: Equilibrium):
+        self.problem, self.state, self.at, self.newton = problem, start, None, 0
+        self.visited: list[tuple[float, np.ndarray]] = []  # (S, p) of each stable equilibrium found
+        weight = np.sqrt(problem.masses / problem.masses.sum()) / problem.strand.length
+        self.weight = weight[:, None]
+
+    def _settle(self, p: np.ndarray) -> bool:
+        """Continue the equilibrium to p; whether one was found."""
+        state = equilibrium(self.problem, p, max_steps=CONTINUATION_STEPS, start=self.state)
+        self.newton += state.newton.steps
+        if state.converged:
+            self.state, self.at = state, p.copy()
+        return state.converged
+
+    def residuals(self, p: np.ndarray) -> np.ndarray:
+        """sqrt(m_i / M) (x_i - x_i*) / L at the equilibrium of p; NaN where none was found (the
+        trust region then shrinks)."""
+        if not self._settle(p):
+            return np.full(3 * self.problem.n_vertices, np.nan)
+        residuals = (self.weight * (self.state.positions - self.problem.strand.points)).ravel()
+        problem, state = self.problem, self.state
+        if problem.stability(p, q=state.q, frames=state.frames) >= problem.stability_margin:
+            self.visited.append((0.5 * float(residuals @ residuals), p.copy()))
+        return residuals
+
+    def jacobian(self, p: np.ndarray) -> np.ndarray:
+        """d residuals / dp: dx/dp = [K^-1 D dc/dp] on the positions, at the equilibrium of p."""
+        problem = self.problem
+        if self.at is None or not np.array_equal(p, self.at):
+            self._settle(p)
+        state, s = self.state, problem.first_free
+        band = problem.hessian_band(p, state.q, state.frames)[:, s:]
+        factor, shift = band_cholesky(band), 0.0
+        masses = problem.dof_masses[s:]
+        while factor is None:  # a saddle of E: shift by the mass metric, as Newton's damping does
+            shift = max(4.0 * shift, 1.0)
+            shifted = band.copy()
+            shifted[0] += shift * masses
+            factor = band_cholesky(shifted)
+        scaled = problem.strand_jacobian(p, state.q, state.frames).tocsc().toarray() * problem.row_scale[s:, None]
+        moved = np.zeros((problem.q_star.size, p.size))
+        moved[s:] = scipy.linalg.cho_solve_banded((np.ascontiguousarray(factor.T), True), scaled)
+        positions = moved[dofs.position_index(problem.n_vertices)]       # (n, 3, parameters)
+        return (self.weight[:, :, None] * positions).reshape(-1, p.size)
+
+
+def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUATIONS) -> LeastSag:
+    """The least-sag parameters in the box from ``p`` (module docstring)."""
+    lower, upper = problem.layout.lower, problem.layout.upper
+    p = np.clip(problem.check_parameters(p), lower, upper)
+    start = equilibrium(problem, p)
+    model = StaticSag(problem, start if start.converged else equilibrium(problem, problem.p0))
+    try:
+        run = scipy.optimize.least_squares(model.residuals, p, jac=model.jacobian, bounds=(lower, upper),
+                                           method="trf", x_scale="jac", tr_solver="lsmr",
+                                           max_nfev=max_evaluations)
+        evaluations = int(run.nfev)
+    except ValueError:  # no equilibrium found at the start itself ("residuals are not finite")
+        evaluations = 1
+    best, rest = p, start
+    for _, candidate in sorted(model.visited, key=lambda visit: visit[0])[:VERIFIED]:
+        candidate = np.clip(candidate, lower, upper)
+        settled = equilibrium(problem, candidate)
+        if (settled.converged and (not start.converged or settled.relative_sag < start.relative_sag)
+                and problem.stability(candidate, q=settled.q, frames=settled.frames) >= problem.stability_margin):
+            best, rest = candidate, settled
+            break
+    return LeastSag(best, rest, start, evaluations, model.newton)
