@@ -300,10 +300,11 @@ class Problem:
         size = self.q_star.size
         return np.bincount(target, values, minlength=(HALF_BANDWIDTH + 1) * size).reshape(-1, size)
 
-    @property
+    @functools.cached_property
     def dof_masses(self) -> np.ndarray:
         """Lumped inertia per DOF (4n-1): the vertex mass m_i (kg) on positions, the edge's polar
-        moment rho pi r^4 l0_j / 2 (kg m^2) on th_j (what the simulation integrates)."""
+        moment rho pi r^4 l0_j / 2 (kg m^2) on th_j (what the simulation integrates). Computed once
+        (every stability evaluation and simulation step reads it); do not modify."""
         n = self.n_vertices
         mass = np.empty(self.q_star.size)
         mass[dofs.position_index(n)] = self.masses[:, None]
