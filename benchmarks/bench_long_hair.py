@@ -10,6 +10,12 @@ statuses, the strands whose sag is below naive's (among those whose static solve
 long strand that flips over can defeat Newton), the mean sag ratios, and how many rest stably
 (``Result.stable``: where an infeasible strand rests). On a 2-core machine run it with
 OPENBLAS_NUM_THREADS=1: two workers that each start BLAS threads slow each other down several times.
+
+The column "box holds" is the median over strands of the largest root moment the default boxes can
+hold without deforming, beta_max E I THETA / L (the bend multiplier at its upper bound times the
+whole-strand curvature budget THETA spread along L), over the groomed root moment of gravity
+|sum_i (x_i - x_0) x m_i g|. Below 1 no parameters inside the boxes balance the strand, and the sag
+cannot stay small: it scales like 1/L^3 with the length.
 """
 from __future__ import annotations
 
@@ -20,6 +26,7 @@ from collections import Counter
 import numpy as np
 
 import sagfree
+from sagfree.formulation.parameters import BUDGETS, STIFFNESS_BOX
 from sagfree.formulation.simulation import equilibrium
 from sagfree.frontend.batch import map_strands
 
@@ -28,6 +35,20 @@ def scaled(strand: sagfree.Strand, factor: float) -> sagfree.Strand:
     points = strand.points[0] + factor * (strand.points - strand.points[0])
     return sagfree.Strand(points, radius=strand.radius, youngs_modulus=strand.youngs_modulus,
                           shear_modulus=strand.shear_modulus, density=strand.density)
+
+
+def box_moment_fraction(strand: sagfree.Strand, gravity=(0.0, 0.0, -9.81)) -> float:
+    """beta_max E I THETA / L over the root moment of gravity on the groomed shape (module docstring)."""
+    x = strand.points
+    edges = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    masses = np.zeros(len(x))
+    masses[:-1] += edges / 2
+    masses[1:] += edges / 2
+    masses *= strand.density * np.pi * strand.radius ** 2
+    root_moment = np.linalg.norm(np.cross(x - x[0], masses[:, None] * np.asarray(gravity)).sum(axis=0))
+    capacity = (STIFFNESS_BOX[1] * strand.youngs_modulus * np.pi * strand.radius ** 4 / 4
+                * BUDGETS["curvature_budget"] / edges.sum())
+    return capacity / root_moment
 
 
 def static_sags(strand: sagfree.Strand, p_asc, p_predecessor) -> tuple[float, float, float]:
@@ -52,7 +73,7 @@ def main() -> None:
     args = parser.parse_args()
     groom = sagfree.scenes.default_groom()[: args.strands]
     print("scale  lengths (cm)   asc statuses                     time s  sag < naive  "
-          "mean sag/naive  mean sag / mean naive  mean sag/penalty-gn  stable  worst sag/naive")
+          "mean sag/naive  mean sag / mean naive  mean sag/penalty-gn  stable  worst sag/naive  box holds")
     for factor in (float(s) for s in args.scales.split(",")):
         strands = [scaled(s, factor) for s in groom]
         start = time.perf_counter()
@@ -68,7 +89,8 @@ def main() -> None:
         print(f"{factor:5g}  {min(lengths):5.0f}-{max(lengths):<5.0f}   {statuses:32} {wall:7.1f}  "
               f"{np.sum(asc[both] < naive[both]):4d}/{np.sum(both):<4d}  {np.mean(asc[both] / naive[both]):14.3f}  "
               f"{np.mean(asc[both]) / np.mean(naive[both]):21.3f}  {np.nanmean(asc / pgn):19.3f}  "
-              f"{sum(r.stable for r in ours)}/{len(ours)}  {np.max(asc[both] / naive[both]):15.3f}")
+              f"{sum(r.stable for r in ours)}/{len(ours)}  {np.max(asc[both] / naive[both]):15.3f}  "
+              f"{np.median([box_moment_fraction(s) for s in strands]):9.3f}")
 
 
 if __name__ == "__main__":

@@ -59,8 +59,8 @@ def solve_table(repeats: int = 20) -> None:
         problem = sagfree.Problem(sagfree.scenes.groom(1, n, seed=0)[0])
         weight = generalized_masses(problem) / 1e-6
         potential = IncrementalPotential(problem, problem.p0, problem.frames, (weight, problem.q_star))
-        band = potential.hessian_band(problem.q_star)[:, problem.first_free:]
-        g = potential.gradient(problem.q_star)[problem.first_free:]
+        band = problem.free_band(potential.hessian_band(problem.q_star))
+        g = potential.gradient(problem.q_star)[problem.free_index]
         size = band.shape[1]
         dense = np.zeros((size, size))
         for k in range(band.shape[0]):

@@ -1,7 +1,8 @@
 """The interleaved DOF vector q = (x_0, th_0, x_1, th_1, ..., th_{n-2}, x_{n-1}), length 4n-1.
 
 Every vertex stencil is 11 consecutive entries, so every Hessian is banded (half bandwidth 10).
-Also: which DOFs the root prescribes, gravity on lumped masses, and the row scales D (DESIGN 3, 4).
+Also: which DOFs the attachments prescribe, external forces on lumped masses, and the row scales D
+(DESIGN 3, 4).
 """
 from __future__ import annotations
 
@@ -51,27 +52,39 @@ def edge_stencil_index(n_vertices: int) -> np.ndarray:
     return 4 * np.arange(n_vertices - 1)[:, None] + np.array([0, 1, 2, 4, 5, 6])
 
 
-def free_mask(n_vertices: int, root: str) -> np.ndarray:
-    """True for free DOFs: clamped prescribes x_0, th_0, x_1 (7 entries); pinned prescribes x_0."""
+def free_mask(n_vertices: int, root: str, tip: str | None = None, pins=()) -> np.ndarray:
+    """True for free DOFs. A clamped root prescribes x_0, th_0, x_1 (the first 7 entries of q), a
+    pinned one x_0; a clamped tip x_{n-2}, th_{n-2}, x_{n-1} (the last 7), a pinned one x_{n-1};
+    each pin i its position x_i."""
     free = np.ones(dof_count(n_vertices), dtype=bool)
     free[: 7 if root == "clamped" else 3] = False
+    if tip is not None:
+        free[-(7 if tip == "clamped" else 3):] = False
+    free[position_index(n_vertices)[np.asarray(pins, dtype=int)].ravel()] = False
     return free
 
 
-def gravity_forces(masses: np.ndarray, gravity: np.ndarray) -> np.ndarray:
-    """Generalized gravity force: m_i g on each vertex position, 0 on angles (N)."""
+def external_forces(masses: np.ndarray, gravity: np.ndarray, loads: np.ndarray | None = None) -> np.ndarray:
+    """Generalized external force: m_i g plus the load on each vertex position, 0 on angles (N)."""
     f = np.zeros(dof_count(len(masses)))
     f[position_index(len(masses))] = masses[:, None] * np.asarray(gravity, dtype=float)
+    if loads is not None:
+        f[position_index(len(masses))] += loads
     return f
 
 
 def row_scales(masses: np.ndarray, edge_lengths: np.ndarray, density: float, radius: float,
-               gravity: np.ndarray) -> np.ndarray:
-    """Characteristic force D per DOF: vertex weight m_i |g| (N) on positions, and edge weight times
-    edge length rho pi r^2 l0_j^2 |g| (N m) on angles; |g| = 9.81 m/s^2 when gravity is zero."""
+               gravity: np.ndarray, loads: np.ndarray | None = None) -> np.ndarray:
+    """Characteristic force D per DOF: vertex weight m_i |g| plus the norm of its load (N) on
+    positions, and edge weight times edge length rho pi r^2 l0_j^2 |g| (N m) on angles; |g| = 9.81
+    m/s^2 when gravity is zero. (A load enters the scale where it acts: a hanging weight thousands of
+    times the vertex's own would otherwise make the tolerance on c unreachably tight there.)"""
     g = float(np.linalg.norm(gravity)) or STANDARD_GRAVITY
     n = len(masses)
     d = np.empty(dof_count(n))
-    d[position_index(n)] = (masses * g)[:, None]
+    weight = masses * g
+    if loads is not None:
+        weight = weight + np.linalg.norm(loads, axis=1)
+    d[position_index(n)] = weight[:, None]
     d[theta_index(n)] = density * np.pi * radius**2 * edge_lengths**2 * g
     return d

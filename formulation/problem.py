@@ -2,7 +2,8 @@
 
     minimize R(p)  subject to  c(p) = D^-1 S f(q*, p) = 0,  lower <= p <= upper,
 
-f = -grad_q E(q*, p) + f_gravity, S selects the free DOFs, D scales each row by a characteristic
+f = -grad_q E(q*, p) + f_ext (gravity and the strand's loads), S selects the free DOFs (those the
+root, tip and pins do not prescribe), D scales each row by a characteristic
 force (dofs.row_scales), so |c|_inf is relative and unit-free. c is evaluated by the compiled stencil
 functions; dc/dp is assembled from their exact parameter Jacobians into a sparse matrix whose rows
 (free DOFs) and columns (parameters) are both in strand order, hence banded.
@@ -15,6 +16,7 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
+from sagfree.linalg.band import principal_band, principal_band_gather
 from sagfree.linalg.eigen import smallest_eigenpair
 
 from . import dofs
@@ -23,7 +25,7 @@ from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
 from .jacobian import JacobianPattern, StrandJacobian
 from .parameters import BLOCKS, STRAND_BLOCK, ParameterLayout
-from .stencils import edge_stencil, vertex_fixed_shape, vertex_stencil
+from .stencils import edge_stencil, parameter_hessians, vertex_fixed_shape, vertex_stencil
 from .strand import InvalidStrand, Strand
 
 #: Half bandwidth of every DOF Hessian: a vertex stencil spans 11 consecutive DOFs (dofs module).
@@ -101,14 +103,16 @@ class Problem:
 
         with np.errstate(all="ignore"):
             masses = 0.5 * strand.density * np.pi * np.float64(r) ** 2 * (np.r_[l0, 0.0] + np.r_[0.0, l0])
-            self.row_scale = dofs.row_scales(masses, l0, strand.density, np.float64(r), self.gravity)
+            self.row_scale = dofs.row_scales(masses, l0, strand.density, np.float64(r), self.gravity,
+                                             strand.loads)
             moduli = np.array([strand.youngs_modulus, strand.shear_modulus])
             _check_scales(masses, self.row_scale, moduli * np.pi * np.float64(r) ** 4,
                           moduli * np.pi * np.float64(r) ** 2)
         self.masses = masses
-        self.gravity_forces = dofs.gravity_forces(masses, self.gravity)
-        self.free = dofs.free_mask(n, strand.root)
-        self.first_free = int(np.argmax(self.free))  # the prescribed DOFs are a prefix of q
+        self.external_forces = dofs.external_forces(masses, self.gravity, strand.loads)
+        self.free = dofs.free_mask(n, strand.root, strand.tip, strand.pins)
+        if not self.free.any():
+            raise ValueError(f"{strand!r}: its attachments prescribe every DOF; nothing is left to balance")
         free_row = np.full(self.q_star.size, -1)
         free_row[self.free] = np.arange(self.free.sum())
         self._jacobian_pattern = JacobianPattern(
@@ -121,8 +125,9 @@ class Problem:
         # the vertex kinematics k and dk/dy at q* (stencils.FixedShapeFunctions), dk/dy transposed
         kinematics, kinematics_jacobian = self.vertex_fixed_functions.kinematics(*self._at_rest[1:])
         self.kinematics_at_rest = (kinematics, np.ascontiguousarray(kinematics_jacobian.transpose(0, 2, 1)))
-        self._free_index = np.flatnonzero(self.free)
-        self._free_row_scale = self.row_scale[self._free_index]
+        self.free_index = np.flatnonzero(self.free)
+        self._free_row_scale = self.row_scale[self.free_index]
+        self._free_gather = principal_band_gather(self.free_index, self.q_star.size, HALF_BANDWIDTH)
         self._band_scatter = None  # built on the first hessian_band call
 
     def with_options(self, **changes) -> "Problem":
@@ -246,12 +251,13 @@ class Problem:
                 + np.bincount(self.vertex_dofs.ravel(), vertex_gradient.ravel(), size))
 
     def forces(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
-        """Generalized force f = -grad_q E(q, p) + f_gravity (4n-1), N and N m."""
-        return self.gravity_forces - self.elastic_gradient(p, q, frames)
+        """Generalized force f = -grad_q E(q, p) + f_ext (4n-1), N and N m; f_ext = gravity on the
+        lumped masses plus the strand's loads."""
+        return self.external_forces - self.elastic_gradient(p, q, frames)
 
     def residual(self, p) -> np.ndarray:
         """c(p) = D^-1 S f(q*, p), unit-free, free rows in strand order."""
-        return self.forces(p)[self._free_index] / self._free_row_scale
+        return self.forces(p)[self.free_index] / self._free_row_scale
 
     def jacobian(self, p) -> sp.csc_matrix:
         """dc/dp as a sparse (free DOFs x parameters) matrix, both axes in strand order (banded)."""
@@ -272,6 +278,38 @@ class Problem:
         return StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
             self.edge_functions.parameter_jacobian(*edge)[0], vertex_jacobian))
 
+    def constraint_hessian(self, p, lam) -> sp.csr_matrix:
+        """sum_r lam_r d2c_r/dp2 at q* (n_parameters square, sparse, symmetric): the curvature of the
+        constraints that the Lagrangian's Hessian adds to the regularizer's (asc's Newton-SQP phase).
+
+        lam^T c = -mu^T grad_q E(q*, physical(p)) + const with mu = lam / D on the free rows (0 on the
+        prescribed), so per stencil it is -d2(u . dE/dk)/d(physical)^2 with u = (dk/dy) mu_y
+        (stencils.ParameterHessianFunctions), mapped to p through the slot maps (physical = constant +
+        coefficient * p[index]): each element's block couples its stiffness and rest-shape entries.
+        """
+        p = self.check_parameters(p)
+        lam = np.asarray(lam, dtype=float).reshape(-1)
+        if lam.shape != (self.free_index.size,):
+            raise ValueError(f"lam must have one entry per free DOF ({self.free_index.size}), got {lam.size}")
+        mu = np.zeros(self.q_star.size)
+        mu[self.free_index] = lam / self._free_row_scale
+        functions = parameter_hessians(self.curvature, self.energies)
+        edge, vertex = self.stencil_inputs(p, None, None)
+        kinematics, transposed = self.kinematics_at_rest
+        (edge_blocks,) = functions.edge(*edge, mu[self.edge_dofs])
+        (vertex_blocks,) = functions.vertex(kinematics, *vertex[2:],
+                                            np.einsum("sij,si->sj", transposed, mu[self.vertex_dofs]))
+        rows, cols, values = [], [], []
+        for blocks, slots in ((edge_blocks, self.layout.edge_map), (vertex_blocks, self.layout.vertex_map)):
+            index, coefficient = slots.index, slots.coefficient
+            linked = (index[:, :, None] >= 0) & (index[:, None, :] >= 0)
+            rows.append(np.broadcast_to(index[:, :, None], blocks.shape)[linked])
+            cols.append(np.broadcast_to(index[:, None, :], blocks.shape)[linked])
+            values.append(-(coefficient[:, :, None] * coefficient[:, None, :] * blocks)[linked])
+        size = self.n_parameters
+        return sp.csr_matrix((np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(size, size))
+
     def _hessian_blocks(self, p, q, frames):
         edge, vertex = self.stencil_inputs(p, q, frames)
         return [(self.edge_dofs, self.edge_functions.hessian(*edge)[0]),
@@ -286,11 +324,15 @@ class Problem:
         size = self.q_star.size
         return sp.csr_matrix((values, (rows, cols)), shape=(size, size))
 
+    def free_band(self, band: np.ndarray) -> np.ndarray:
+        """The free-DOF block (rows and columns ``free_index``) of a full band from ``hessian_band``,
+        in the same band storage (attachments may prescribe DOFs anywhere along q)."""
+        return principal_band(band, self._free_gather, self.free_index.size)
+
     def hessian_band(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """d2E/dq2 in LAPACK lower band storage: band[k, j] = H[j + k, j], k = 0..10.
 
-        Summed from the stencil Hessians in O(n); ``band[:, s:]`` is the trailing block from DOF s
-        (the free block: the root prescribes a prefix of q).
+        Summed from the stencil Hessians in O(n); ``free_band`` extracts the free block.
         """
         if self._band_scatter is None:
             self._band_scatter = _band_scatter(
@@ -324,8 +366,8 @@ class Problem:
         normalized so that v^T M v = 1. Linear in n: compiled shift-and-invert Lanczos on the scaled
         band M^-1/2 H M^-1/2 (linalg.eigen).
         """
-        band = self.hessian_band(p, q, frames)[:, self.first_free:]
-        scale = 1.0 / np.sqrt(self.dof_masses[self.first_free:])
+        band = self.free_band(self.hessian_band(p, q, frames))
+        scale = 1.0 / np.sqrt(self.dof_masses[self.free_index])
         size = band.shape[1]
         scaled = np.zeros_like(band)
         for k in range(band.shape[0]):
@@ -334,7 +376,7 @@ class Problem:
         if not vector:
             return value
         v = np.zeros(self.q_star.size)
-        v[self.first_free:] = mode * scale
+        v[self.free_index] = mode * scale
         return value, v
 
     def stiffening_gradient(self, p, mode: np.ndarray) -> np.ndarray:

@@ -1,9 +1,11 @@
 """Forward simulation of one strand: implicit Euler and the static equilibrium (DESIGN section 7).
 
 Both minimize, by Newton's method, an incremental potential over the free DOFs (the root prescribes
-x_0, th_0, x_1 when clamped, x_0 when pinned):
+x_0, th_0, x_1 when clamped, x_0 when pinned; a held tip and pins prescribe theirs, Strand):
 
-    Phi(q) = E(q, p) - f_g . q + 1/2 (q - y)^T W (q - y)                                      (J)
+    Phi(q) = E(q, p) - f_ext . q + 1/2 (q - y)^T W (q - y)                                    (J)
+
+with f_ext gravity on the lumped masses plus the strand's loads.
 
 * implicit (backward) Euler with mass-proportional damping c (1/s): W = M (1/dt^2 + c/dt) and
   y = q_t + dt v_t / (1 + c dt); then grad Phi = 0 is M (v_{t+1} - v_t)/dt = f(q_{t+1}) - c M v_{t+1}
@@ -169,14 +171,14 @@ class IncrementalPotential:
         self.scales = newton_scales(problem, self.p) if scales is None else scales
 
     def value(self, q: np.ndarray) -> float:
-        phi = self.problem.energy(self.p, q, self.frames) - self.problem.gravity_forces @ q
+        phi = self.problem.energy(self.p, q, self.frames) - self.problem.external_forces @ q
         if self.weight is not None:
             d = q - self.target
             phi += 0.5 * d @ (self.weight * d)
         return float(phi)
 
     def gradient(self, q: np.ndarray) -> np.ndarray:
-        g = self.problem.elastic_gradient(self.p, q, self.frames) - self.problem.gravity_forces
+        g = self.problem.elastic_gradient(self.p, q, self.frames) - self.problem.external_forces
         if self.weight is not None:
             g += self.weight * (q - self.target)
         return g
@@ -191,10 +193,11 @@ class IncrementalPotential:
 def newton_scales(problem: Problem, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Per free DOF: the residual scale D, the Levenberg-Marquardt metric M and the step tolerance
     (STEP_TOLERANCE L on positions, STEP_TOLERANCE rad on angles); and the round-off floor."""
-    s = problem.first_free
+    free = problem.free_index
     limit = np.full(problem.q_star.size, STEP_TOLERANCE * problem.strand.length)
     limit[dofs.theta_index(problem.n_vertices)] = STEP_TOLERANCE
-    return problem.row_scale[s:], generalized_masses(problem)[s:], limit[s:], roundoff_floor(problem, p)
+    return (problem.row_scale[free], generalized_masses(problem)[free], limit[free],
+            roundoff_floor(problem, p))
 
 
 def roundoff_floor(problem: Problem, p: np.ndarray) -> float:
@@ -242,14 +245,14 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
     re-bases ``potential.frames`` when tangents turn far.
     """
     problem = potential.problem
-    s = problem.first_free
+    free = problem.free_index
     scale, metric, step_limit, floor = potential.scales
     q = np.array(q, dtype=float)
     record = NewtonSolve()
     phi = potential.value(q)
     tiny_step = False
     while True:
-        g = potential.gradient(q)[s:]
+        g = potential.gradient(q)[free]
         residual = float(np.max(np.abs(g / scale)))
         record.residuals.append(residual)
         if not np.isfinite(residual) or not np.isfinite(phi):
@@ -266,7 +269,7 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
         if record.steps == max_steps:
             record.message = f"no convergence in {max_steps} Newton steps (residual {residual:.2e})"
             return q, record
-        band = potential.hessian_band(q)[:, s:]
+        band = problem.free_band(potential.hessian_band(q))
         for _ in range(MAX_REJECTED):
             damped = band.copy()
             damped[0] += mu * metric
@@ -276,7 +279,7 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
                 mu = max(4.0 * mu, MU_MIN)
                 continue
             d = -band_solve(factor, g)
-            alpha, trial, phi_trial = _line_search(potential, q, s, phi, g @ d, d)
+            alpha, trial, phi_trial = _line_search(potential, q, free, phi, g @ d, d)
             if trial is not None:
                 break
             record.rejected += 1
@@ -304,14 +307,14 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
             phi = potential.value(q)
 
 
-def _line_search(potential: IncrementalPotential, q, s, phi, slope, d):
-    """Armijo backtracking from q along d (free DOFs from s): the first alpha = 1, 1/2, ... (at most
+def _line_search(potential: IncrementalPotential, q, free, phi, slope, d):
+    """Armijo backtracking from q along d (on the DOFs ``free``): the first alpha = 1, 1/2, ... (at most
     MAX_HALVINGS halvings) with Phi(q + alpha d) <= Phi(q) + ARMIJO alpha slope, or with a change of
     Phi below rounding. Returns (alpha, q + alpha d, Phi there), or (0, None, None)."""
     alpha = 1.0
     for _ in range(MAX_HALVINGS + 1):
         trial = q.copy()
-        trial[s:] += alpha * d
+        trial[free] += alpha * d
         with np.errstate(all="ignore"):
             phi_trial = potential.value(trial)
         unresolvable = -alpha * slope <= 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
@@ -356,7 +359,7 @@ def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: f
     """Implicit-Euler run of ``steps`` steps of ``dt`` seconds from rest at q* (module docstring).
 
     damping: mass-proportional damping rate c, 1/s (0: none). root_motion: translation (m, 3-vector)
-    of the prescribed root vertices at time t (s); None keeps the root where q* has it. start: the
+    of the root vertices at time t (s); None keeps the root where q* has it (a held tip and pins stay). start: the
     state at t = 0 (4n-1; at rest; None: q*), e.g. a pushed q*. The run stops early if a state
     becomes non-finite; ``converged`` tells whether every step's Newton converged.
     """
@@ -367,7 +370,7 @@ def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: f
     weight = generalized_masses(problem) * (1.0 / dt**2 + damping / dt)
     scales = newton_scales(problem, p)
     n = problem.n_vertices
-    root = [i for i in dofs.position_index(n).ravel() if i < problem.first_free]
+    root = dofs.position_index(n)[:2 if problem.strand.root == "clamped" else 1].ravel()
     q = problem.q_star.copy() if start is None else np.asarray(start, dtype=float).copy()
     if q.shape != problem.q_star.shape:
         raise ValueError(f"start must have {problem.q_star.size} entries (4n-1), got {q.size}")

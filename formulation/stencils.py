@@ -121,6 +121,45 @@ def vertex_fixed_shape(variant: str = "4d", terms: tuple[str, ...] = ("bend", "t
     return FixedShapeFunctions(*batch_functions(functions))
 
 
+@dataclass(frozen=True)
+class ParameterHessianFunctions:
+    """Second derivatives in the physical parameters at a fixed shape, weighted by a force direction:
+
+    edge (y, geometry, physical, u) -> d2(u . dE/dy)/d(physical)^2 (2 x 2), u in the edge's DOFs;
+    vertex (k, geometry, physical, u) -> d2(u . dE/dk)/d(physical)^2 (7 x 7), u in the kinematics k.
+
+    lam^T c(p) sums such terms (Problem.constraint_hessian): the exact Hessian of the Lagrangian that
+    asc's Newton-SQP phase needs (stiffness x rest-shape products, rest lengths in 1/lbar). Built and
+    compiled apart from the other stencil functions, on first use.
+    """
+
+    edge: BatchFunction
+    vertex: BatchFunction
+
+
+@lru_cache(maxsize=None)
+def parameter_hessians(variant: str = "4d", terms: tuple[str, ...] = TERMS) -> ParameterHessianFunctions:
+    """The ParameterHessianFunctions of the energies ``terms`` with the curvature ``variant``."""
+    y = ca.SX.sym("y", EDGE_DOFS)
+    geometry = ca.SX.sym("geometry", len(EDGE_GEOMETRY))
+    physical = ca.SX.sym("physical", len(EDGE_PHYSICAL))
+    u = ca.SX.sym("u", EDGE_DOFS)
+    energy = stretch_energy(y, geometry, physical) if "stretch" in terms else ca.SX(0)
+    weighted = ca.dot(u, ca.gradient(energy, y))
+    edge = ca.Function("edge_parameter_hessian", [y, geometry, physical, u],
+                       [ca.densify(ca.hessian(weighted, physical)[0])])
+    k = ca.SX.sym("k", KINEMATICS_SIZE)
+    geometry = ca.SX.sym("geometry", len(VERTEX_GEOMETRY))
+    physical = ca.SX.sym("physical", len(VERTEX_PHYSICAL))
+    u = ca.SX.sym("u", KINEMATICS_SIZE)
+    vertex_terms = tuple(t for t in ("bend", "twist") if t in terms)
+    energy = _vertex_energy(variant, vertex_terms, VertexKinematics(kappa4=k[0:4], twist=k[4]), geometry, physical)
+    weighted = ca.dot(u, ca.gradient(energy, k))
+    vertex = ca.Function("vertex_parameter_hessian", [k, geometry, physical, u],
+                         [ca.densify(ca.hessian(weighted, physical)[0])])
+    return ParameterHessianFunctions(*batch_functions([edge, vertex]))
+
+
 def _vertex_energy(variant: str, terms: tuple[str, ...], kin: VertexKinematics, geometry, physical):
     """Bend + twist energy of a vertex stencil (the chosen ``terms``), J."""
     check_variant(variant)

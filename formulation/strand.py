@@ -1,10 +1,12 @@
-"""The input strand: groomed polyline, material, frames and root condition (DESIGN sections 3 and 10)."""
+"""The input strand: groomed polyline, material, frames, attachments and loads (DESIGN sections 3 and 10)."""
 from __future__ import annotations
 
 import numpy as np
 
 #: Root conditions: which leading DOFs are prescribed (DESIGN section 3).
 ROOTS = ("clamped", "pinned")
+#: Tip conditions: None (free), or the mirror image of a root condition on the last vertices.
+TIPS = (None, "pinned", "clamped")
 #: Largest turning angle accepted at a vertex (degrees). The curvature binormal 2 tan(phi/2) blows up
 #: at 180 degrees; a groom with a sharper kink is almost surely a broken polyline.
 MAX_TURNING_ANGLE_DEG = 170.0
@@ -18,12 +20,18 @@ class Strand:
     theta: (n-1,) material angles of the edges (rad) relative to the Bishop reference frame;
         None = 0 (untwisted input). th = pi on alternate edges gives "flipped frames".
     root: "clamped" (x_0, x_1, th_0 prescribed) or "pinned" (x_0 prescribed).
+    tip: None (free), "pinned" (x_{n-1} prescribed) or "clamped" (x_{n-2}, x_{n-1}, th_{n-2}
+        prescribed): a cable held at both ends, a strand whose tip is tied down.
+    pins: indices of further vertices whose positions are prescribed (their edges still turn about
+        them), e.g. a strand held by a clip along the way.
+    loads: (n, 3) external force on each vertex (N) in addition to gravity (wind, a hanging weight);
+        None = no load. Forces on prescribed vertices are carried by the support.
     director: reference director a1 of the first edge; projected perpendicular to the first edge.
         None = "up" (minus gravity) projected, chosen by the Problem that knows gravity.
     """
 
     def __init__(self, points, radius=5e-5, youngs_modulus=1e9, shear_modulus=4e8, density=1300.0,
-                 theta=None, root="clamped", director=None):
+                 theta=None, root="clamped", director=None, tip=None, pins=(), loads=None):
         self.points = _validated_points(points)
         n = len(self.points)
         self.radius = _positive("radius", radius)
@@ -33,6 +41,11 @@ class Strand:
         if root not in ROOTS:
             raise ValueError(f"root must be one of {ROOTS}, got {root!r}")
         self.root = root
+        if tip not in TIPS:
+            raise ValueError(f"tip must be one of {TIPS}, got {tip!r}")
+        self.tip = tip
+        self.pins = _validated_pins(pins, n)
+        self.loads = None if loads is None else _validated_loads(loads, n)
         if theta is None:
             self.theta = np.zeros(n - 1)
         else:
@@ -48,6 +61,34 @@ class Strand:
             self.director = np.array(director, dtype=float).reshape(-1)
             if self.director.shape != (3,) or not np.all(np.isfinite(self.director)):
                 raise ValueError(f"director must be a finite 3-vector, got {director!r}")
+
+    @property
+    def attachments(self) -> str:
+        """How the strand is held and loaded, e.g. "root clamped, tip free, pins [], no loads"."""
+        return (f"root {self.root}, tip {self.tip or 'free'}, pins {self.pins.tolist()}, "
+                f"{'loads' if self.loads is not None else 'no loads'}")
+
+    def attached(self, root=None, tip=None, pins=None) -> "Strand":
+        """The same strand with the given attachments replacing its own (None keeps its own; ``tip``
+        "free" frees the tip)."""
+        return Strand(self.points, radius=self.radius, youngs_modulus=self.youngs_modulus,
+                      shear_modulus=self.shear_modulus, density=self.density, theta=self.theta,
+                      root=root or self.root, director=self.director,
+                      tip=self.tip if tip is None else (None if tip == "free" else tip),
+                      pins=self.pins if pins is None else pins, loads=self.loads)
+
+    @property
+    def prescribed_vertices(self) -> np.ndarray:
+        """Sorted indices of the vertices whose positions are prescribed (root, tip, pins)."""
+        n = self.n_vertices
+        held = {0, *self.pins}
+        if self.root == "clamped":
+            held.add(1)
+        if self.tip is not None:
+            held.add(n - 1)
+        if self.tip == "clamped":
+            held.add(n - 2)
+        return np.array(sorted(held), dtype=int)
 
     @property
     def n_vertices(self) -> int:
@@ -74,7 +115,9 @@ class Strand:
 
     def __repr__(self) -> str:
         return (f"Strand(n={self.n_vertices}, L={self.length:.4g} m, r={self.radius:.3g} m, "
-                f"E={self.youngs_modulus:.3g} Pa, G={self.shear_modulus:.3g} Pa, root={self.root!r})")
+                f"E={self.youngs_modulus:.3g} Pa, G={self.shear_modulus:.3g} Pa, root={self.root!r}"
+                f"{f', tip={self.tip!r}' if self.tip else ''}{f', pins={self.pins.tolist()}' if self.pins.size else ''}"
+                f"{', loads' if self.loads is not None else ''})")
 
 
 class InvalidStrand:
@@ -105,6 +148,29 @@ def _positive(name: str, value) -> float:
     if not np.isfinite(v) or v <= 0:
         raise ValueError(f"{name} must be positive and finite, got {value!r}")
     return v
+
+
+def _validated_pins(pins, n: int) -> np.ndarray:
+    """Sorted unique vertex indices in 0..n-1; the error names the offending entry."""
+    values = np.array(pins if pins is not None else (), dtype=float).reshape(-1)
+    for value in values:
+        if not (np.isfinite(value) and value == int(value) and 0 <= value < n):
+            raise ValueError(f"pins must be vertex indices in 0..{n - 1}, got {value:g}")
+    return np.unique(values.astype(int))
+
+
+def _validated_loads(loads, n: int) -> np.ndarray:
+    """Loads as a float (n, 3) array in N; the error names the offending vertex."""
+    try:
+        f = np.array(loads, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"loads must be an (n, 3) array of forces in N: {exc}") from None
+    if f.shape != (n, 3):
+        raise ValueError(f"loads must have one force (N) per vertex, shape ({n}, 3), got {f.shape}")
+    bad = np.flatnonzero(~np.all(np.isfinite(f), axis=1))
+    if bad.size:
+        raise ValueError(f"load on vertex {bad[0]} is not finite ({f[bad[0]].tolist()})")
+    return f
 
 
 def _validated_points(points) -> np.ndarray:

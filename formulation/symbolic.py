@@ -72,7 +72,7 @@ def _data_values(problem: Problem) -> dict[str, np.ndarray]:
         "vertex_dofs": vertex[0].T, "vertex_reference": vertex[1].T, "vertex_geometry": vertex[2].T,
         "vertex_constant": layout.vertex_map.constant.T,
         "vertex_coefficient": layout.vertex_map.coefficient.T,
-        "gravity": problem.gravity_forces[problem.free],
+        "gravity": problem.external_forces[problem.free],
         "inverse_scale": 1.0 / problem.row_scale[problem.free],
         "p0": layout.p0, "weights": layout.weights,
     }

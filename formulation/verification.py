@@ -92,8 +92,8 @@ def jacobian_error(problem: Problem, p, block: str, directions: int = 3, seed: i
 
 def verification_strands(seed: int = 0, n: int = 12) -> dict[str, Strand]:
     """Random strands for verification: a helix, a random smooth 3D curve, a strongly twisted curve
-    (random material angles, about 1 rad per edge), flipped frames on a curved strand, and a pinned
-    root; all with edges of about 5 mm."""
+    (random material angles, about 1 rad per edge), flipped frames on a curved strand, a pinned
+    root, and a strand held at both ends and in the middle with random loads; all with edges of about 5 mm."""
     rng = np.random.default_rng(seed)
 
     def random_curve():
@@ -112,6 +112,7 @@ def verification_strands(seed: int = 0, n: int = 12) -> dict[str, Strand]:
         "twisted": Strand(random_curve(), theta=np.cumsum(rng.uniform(-1.5, 1.5, n - 1))),
         "flipped": Strand(random_curve(), theta=np.where(np.arange(n - 1) % 2 == 1, np.pi, 0.0)),
         "pinned": Strand(random_curve(), root="pinned", theta=rng.uniform(-3, 3, n - 1)),
+        "held": Strand(random_curve(), tip="clamped", pins=[n // 2], loads=1e-6 * rng.standard_normal((n, 3))),
     }
 
 

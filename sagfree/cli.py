@@ -92,11 +92,10 @@ def _optimize(args) -> int:
     from sagfree.contract.result import status_summary
     from sagfree.frontend.batch import optimize
     from sagfree.frontend.checkpoint import Checkpoint
-    from sagfree.scenes import load
     from sagfree.scenes.npz import save_parameters
 
     solver_options = _solver_options(args)
-    strands = load(args.input, args.units, keep_invalid=True)
+    strands = _load_input(args)
     options = _problem_options(args)
     checkpoint = Checkpoint(args.output, strands, args.solver, {**options, "solver_options": solver_options},
                             args.resume)
@@ -125,10 +124,9 @@ def _optimize(args) -> int:
 
 def _simulate(args) -> int:
     from sagfree.frontend.batch import simulate_strands
-    from sagfree.scenes import load
     from sagfree.scenes.npz import load_parameters
 
-    strands = load(args.input, args.units, keep_invalid=True)
+    strands = _load_input(args)
     params = load_parameters(args.params)
     params.check_matches(strands, args.input)
     from sagfree.formulation.simulation import PUSH, PUSH_DURATION
@@ -160,9 +158,35 @@ def _simulate(args) -> int:
 
 def _input_arguments(command) -> None:
     command.add_argument("input", metavar="INPUT", help="strands file (.npz, .hair, .data, .obj) or built-in "
-                         "scene name (default-groom, horizontal, flipped, helix, wavy, curly)")
+                         "scene name (default-groom, horizontal, flipped, helix, wavy, curly, cable, "
+                         "horizontal-tip-pinned)")
     command.add_argument("--units", default=None, choices=("m", "cm", "mm"),
                          help="length unit of a .hair/.data/.obj file (default: cm for .hair, m otherwise)")
+    command.add_argument("--root", default=None, choices=("clamped", "pinned"),
+                         help="hold every strand's root so (default: the file's, clamped for hair files)")
+    command.add_argument("--tip", default=None, choices=("free", "pinned", "clamped"),
+                         help="hold every strand's tip so (default: the file's, free for hair files)")
+    command.add_argument("--pin", action="append", type=int, default=None, metavar="VERTEX",
+                         help="also prescribe this vertex's position on every strand (repeatable)")
+
+
+def _load_input(args) -> list:
+    """The input strands with the command line's attachments; a strand they do not fit (a pin past
+    its last vertex) becomes invalid with the reason, and the batch goes on."""
+    from sagfree.formulation.strand import InvalidStrand
+    from sagfree.scenes import load
+
+    strands = load(args.input, args.units, keep_invalid=True)
+    if args.root is None and args.tip is None and args.pin is None:
+        return strands
+    attached = []
+    for k, strand in enumerate(strands):
+        try:
+            attached.append(strand if isinstance(strand, InvalidStrand) else
+                            strand.attached(args.root, args.tip, args.pin))
+        except ValueError as exc:
+            attached.append(InvalidStrand(strand.points, f"{args.input}: strand {k}: {exc}"))
+    return attached
 
 
 def _simulation_arguments(command) -> None:

@@ -16,7 +16,7 @@ from .cyhair import load_hair, save_hair
 from .groom import default_groom
 from .npz import load_strands, save_parameters, save_strands
 from .obj_polylines import load_obj, save_obj
-from .synthetic import curly, flipped, helix, horizontal, wavy
+from .synthetic import cable, curly, flipped, helix, horizontal, wavy
 from .usc_data import load_data, save_data
 
 BUILTIN = {
@@ -26,6 +26,8 @@ BUILTIN = {
     "helix": lambda: [helix()],
     "wavy": lambda: [wavy()],
     "curly": lambda: [curly()],
+    "cable": lambda: [cable()],
+    "horizontal-tip-pinned": lambda: [horizontal(tip="pinned")],
 }
 #: extension -> (reader, writer); the hair formats take units and material keywords
 FORMATS = {

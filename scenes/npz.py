@@ -2,9 +2,12 @@
 
 Strands file: ``points`` (total vertices, 3) in m, all strands one after another; ``offsets``
 (strands + 1), strand k being points[offsets[k]:offsets[k+1]]; per strand ``radius``,
-``youngs_modulus``, ``shear_modulus``, ``density`` (SI) and ``root`` ("clamped" | "pinned");
-``theta`` (total edges) material angles, strand k owning n_k - 1 of them in order. Strands may have
-different vertex counts.
+``youngs_modulus``, ``shear_modulus``, ``density`` (SI), ``root`` ("clamped" | "pinned") and ``tip``
+("" for a free tip, "pinned" | "clamped"); ``theta`` (total edges) material angles, strand k owning
+n_k - 1 of them in order; ``pins`` (vertex indices within their strand, all strands one after
+another, strand k owning pins[pin_offsets[k]:pin_offsets[k+1]]) and, when any strand has loads,
+``loads`` (total vertices, 3) in N (zero rows for strands without). Strands may have different vertex
+counts. ``tip``, ``pins`` and ``loads`` are optional on reading.
 
 Parameters file (written by ``sagfree optimize``):
 - per block, in physical units, all strands one after another: ``rest_length`` (m) and
@@ -17,7 +20,9 @@ Parameters file (written by ``sagfree optimize``):
   (``radius``, ``youngs_modulus``, ``shear_modulus``, ``density``): a reader checks that it is given
   the same strands, since OBJ and .data files store no material;
 - ``solver`` and ``problem_options`` (the Problem options as JSON, so that a reader rebuilds the same
-  Problem).
+  Problem);
+- ``attachments``: each strand's ``Strand.attachments`` (root, tip, pins, loads), which a reader
+  checks too (a strand held differently is a different problem).
 Next to it, ``<name>.json`` summarizes each strand's status, message, |c|_inf, residual force,
 R(p*), iterations, stiffening, stability and time.
 
@@ -72,8 +77,14 @@ def save_strands(path, strands: list[Strand]) -> None:
         "offsets": np.r_[0, np.cumsum(counts)].astype(np.int64),
         "theta": np.concatenate([s.theta for s in strands]) if strands else np.zeros(0),
         "root": np.array([s.root for s in strands], dtype=str),
+        "tip": np.array([s.tip or "" for s in strands], dtype=str),
+        "pins": np.concatenate([s.pins for s in strands]).astype(np.int64) if strands else np.zeros(0, np.int64),
+        "pin_offsets": np.r_[0, np.cumsum([s.pins.size for s in strands])].astype(np.int64),
         **{f: np.array([getattr(s, f) for s in strands], dtype=float) for f in MATERIAL_FIELDS},
     }
+    if any(s.loads is not None for s in strands):
+        arrays["loads"] = np.concatenate([np.zeros((s.n_vertices, 3)) if s.loads is None else s.loads
+                                          for s in strands])
     write_atomically(path, lambda f: np.savez(f, **arrays))
 
 
@@ -88,7 +99,7 @@ def load_strands(path, keep_invalid: bool = False) -> list[Strand]:
     offsets = _offsets(path, arrays, "offsets", len(points))
     count = offsets.size - 1
     per_strand = {}
-    for name in (*MATERIAL_FIELDS, "root"):
+    for name in (*MATERIAL_FIELDS, "root", "tip"):
         if name in arrays:
             if np.shape(arrays[name]) != (count,):
                 raise ValueError(f"{path}: '{name}' must have one entry per strand ({count}), "
@@ -100,11 +111,27 @@ def load_strands(path, keep_invalid: bool = False) -> list[Strand]:
         raise ValueError(f"{path}: 'theta' must have one angle per edge ({int(np.maximum(counts - 1, 0).sum())}),"
                          f" got shape {np.shape(theta)}")
     theta_offsets = np.r_[0, np.cumsum(np.maximum(counts - 1, 0))]
+    pins = arrays.get("pins")
+    if pins is not None:
+        if pins.ndim != 1 or not np.issubdtype(pins.dtype, np.integer) or "pin_offsets" not in arrays:
+            raise ValueError(f"{path}: 'pins' must be a 1-D integer array with 'pin_offsets'")
+        pin_offsets = _offsets(path, arrays, "pin_offsets", len(pins))
+        if pin_offsets.size != count + 1:
+            raise ValueError(f"{path}: 'pin_offsets' must have {count + 1} entries, got {pin_offsets.size}")
+    loads = arrays.get("loads")
+    if loads is not None and np.shape(loads) != (len(points), 3):
+        raise ValueError(f"{path}: 'loads' must have shape ({len(points)}, 3) (N per vertex), got {np.shape(loads)}")
     strands = []
     for k in range(count):
-        options = {name: (str(v[k]) if name == "root" else float(v[k])) for name, v in per_strand.items()}
+        options = {name: (str(v[k]) if name in ("root", "tip") else float(v[k])) for name, v in per_strand.items()}
+        if "tip" in options:
+            options["tip"] = options["tip"] or None
         if theta is not None:
             options["theta"] = theta[theta_offsets[k]: theta_offsets[k + 1]]
+        if pins is not None:
+            options["pins"] = pins[pin_offsets[k]: pin_offsets[k + 1]]
+        if loads is not None and np.any(loads[offsets[k]: offsets[k + 1]]):
+            options["loads"] = loads[offsets[k]: offsets[k + 1]]
         strands.append(make_strand(points[offsets[k]: offsets[k + 1]], f"{path}: strand {k}", keep_invalid,
                                    **options))
     return strands
@@ -134,6 +161,7 @@ class ParameterFile:
     lengths: np.ndarray
     physical: dict[str, list[np.ndarray]]
     material: dict[str, np.ndarray]
+    attachments: list[str] | None = None  # Strand.attachments per strand ("" for an invalid one)
 
     def check_matches(self, strands, source: str = "the strands") -> None:
         """Raise ValueError unless ``strands`` are those the parameters were computed for."""
@@ -151,6 +179,10 @@ class ParameterFile:
                     raise ValueError(
                         f"strand {k} of {source} has {name} {getattr(strand, name, np.nan):.6g}, the parameters "
                         f"were computed for {values[k]:.6g} (a file format that stores no {name}? use .npz)")
+            held = getattr(strand, "attachments", "")
+            if self.attachments is not None and self.attachments[k] and held != self.attachments[k]:
+                raise ValueError(f"strand {k} of {source} is held with {held}; the parameters were computed "
+                                 f"with {self.attachments[k]} (pass the same --root/--tip/--pin as to optimize)")
 
 
 def save_parameters(path, strands, results, solver: str, problem_options: dict) -> None:
@@ -167,6 +199,7 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
         "message": np.array([r.message for r in results], dtype=str),
         "solver": np.array(solver),
         "problem_options": np.array(json.dumps(problem_options, sort_keys=True)),
+        "attachments": np.array([getattr(s, "attachments", "") for s in strands], dtype=str),
         "vertex_counts": counts,
         "lengths": np.array([s.length for s in strands]),
         **{f: np.array([getattr(s, f, np.nan) for s in strands], dtype=float) for f in MATERIAL_FIELDS},
@@ -214,8 +247,12 @@ def load_parameters(path) -> ParameterFile:
     material = {f: np.asarray(arrays[f], dtype=float) for f in MATERIAL_FIELDS if f in arrays}
     if any(values.shape != (count,) for values in material.values()):
         raise ValueError(f"{path}: material arrays must have one entry per strand ({count})")
+    attachments = arrays.get("attachments")
+    if attachments is not None and np.shape(attachments) != (count,):
+        raise ValueError(f"{path}: 'attachments' must have one entry per strand ({count})")
     return ParameterFile([p[offsets[k]: offsets[k + 1]] for k in range(count)], status, message,
-                         str(arrays.get("solver", "unknown")), options, counts, lengths, physical, material)
+                         str(arrays.get("solver", "unknown")), options, counts, lengths, physical, material,
+                         None if attachments is None else [str(a) for a in attachments])
 
 
 def _finite_or_none(value):

@@ -42,6 +42,14 @@ def horizontal(n: int = 30, length: float = 0.10, **material) -> Strand:
     return _strand(np.column_stack([x, np.zeros(n), np.zeros(n)]), **material)
 
 
+def cable(n: int = 50, length: float = 1.0, **material) -> Strand:
+    """A straight horizontal cable along +x clamped at both ends (r 2 mm, E 1 GPa, G 0.4 GPa,
+    1300 kg/m^3: a polymer-sheathed cable); gravity would make it a catenary."""
+    x = np.linspace(0.0, length, n)
+    options = {"radius": 2e-3, "tip": "clamped", **material}
+    return _strand(np.column_stack([x, np.zeros(n), np.zeros(n)]), **options)
+
+
 def flipped(n: int = 30, length: float = 0.10, **material) -> Strand:
     """`horizontal` with the material frames of alternate edges flipped, th = pi (supplement Fig. 2)."""
     base = horizontal(n, length)

@@ -102,18 +102,18 @@ class StaticSag:
         problem = self.problem
         if self.at is None or not np.array_equal(p, self.at):
             self._settle(p)
-        state, s = self.state, problem.first_free
-        band = problem.hessian_band(p, state.q, state.frames)[:, s:]
+        state, free = self.state, problem.free_index
+        band = problem.free_band(problem.hessian_band(p, state.q, state.frames))
         factor, shift = band_cholesky(band), 0.0
-        masses = problem.dof_masses[s:]
+        masses = problem.dof_masses[free]
         while factor is None:  # a saddle of E: shift by the mass metric, as Newton's damping does
             shift = max(4.0 * shift, 1.0)
             shifted = band.copy()
             shifted[0] += shift * masses
             factor = band_cholesky(shifted)
-        scaled = problem.strand_jacobian(p, state.q, state.frames).tocsc().toarray() * problem.row_scale[s:, None]
+        scaled = problem.strand_jacobian(p, state.q, state.frames).tocsc().toarray() * problem.row_scale[free, None]
         moved = np.zeros((problem.q_star.size, p.size))
-        moved[s:] = scipy.linalg.cho_solve_banded((np.ascontiguousarray(factor.T), True), scaled)
+        moved[free] = scipy.linalg.cho_solve_banded((np.ascontiguousarray(factor.T), True), scaled)
         positions = moved[dofs.position_index(problem.n_vertices)]       # (n, 3, parameters)
         return (self.weight[:, :, None] * positions).reshape(-1, p.size)
 

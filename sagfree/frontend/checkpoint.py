@@ -26,13 +26,14 @@ MANIFEST = "manifest.json"
 
 
 def fingerprint(strands, solver: str, options: dict) -> str:
-    """sha256 over every strand's geometry and material, the solver, the options and the version."""
+    """sha256 over every strand's geometry, material and attachments, the solver, the options and the version."""
     from sagfree import __version__
 
     digest = hashlib.sha256(json.dumps([solver, options, __version__], sort_keys=True).encode())
     for strand in strands:
         digest.update(np.ascontiguousarray(strand.points, dtype=float).tobytes())
-        for name in ("theta", "radius", "youngs_modulus", "shear_modulus", "density", "root", "message"):
+        for name in ("theta", "radius", "youngs_modulus", "shear_modulus", "density", "root", "tip", "pins", "loads",
+                     "message"):
             value = getattr(strand, name, None)
             digest.update(np.asarray(value).tobytes() if isinstance(value, np.ndarray) else repr(value).encode())
     return digest.hexdigest()

@@ -3,7 +3,8 @@ eigenvalue code (DESIGN section 2).
 
 Every strand matrix is banded because DOFs and parameters are both ordered along the strand:
 
-- ``band``: bordered band storage of symmetric matrices, products, J^T J accumulated from J;
+- ``band``: bordered band storage of symmetric matrices, products, J^T J accumulated from J,
+  principal submatrices of a band (the free DOFs);
 - ``cholesky``: the banded Cholesky factorization and its solves, with an active set (the
   rows and columns of bound variables replaced by the identity) and partial refactorization;
 - ``normal``: the row-space normal matrix J_C diag(d) J_C^T, factored (least-squares multipliers);

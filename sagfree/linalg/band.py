@@ -181,3 +181,32 @@ def column_norms(J) -> np.ndarray:
     filled = np.diff(J.indptr) > 0
     norms[filled] = np.add.reduceat(J.data**2, J.indptr[:-1][filled])
     return norms
+
+
+def principal_band_gather(index: np.ndarray, size: int, half_bandwidth: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gather map of the principal submatrix H[index][:, index] in lower band storage.
+
+    H (size x size) is in LAPACK lower band storage band[k, j] = H[j + k, j], k = 0..w; ``index``
+    sorted. Deleting rows and columns never widens a band, so the submatrix has half bandwidth <= w
+    too. Returns (target, source): flat positions into the (w + 1, len(index)) result and into
+    ``band``; ``principal_band(band, map)`` applies it (the prescribed DOFs of a strand leave its
+    free block, anywhere along q).
+    """
+    index = np.asarray(index, dtype=int)
+    m = index.size
+    targets, sources = [], []
+    for k in range(half_bandwidth + 1):
+        a = np.arange(m - k)
+        distance = index[a + k] - index[a]
+        keep = distance <= half_bandwidth
+        targets.append(k * m + a[keep])
+        sources.append(distance[keep] * size + index[a[keep]])
+    return np.concatenate(targets), np.concatenate(sources)
+
+
+def principal_band(band: np.ndarray, gather: tuple[np.ndarray, np.ndarray], size: int) -> np.ndarray:
+    """The principal submatrix of ``principal_band_gather`` (``size`` = len(index)) in band storage."""
+    target, source = gather
+    out = np.zeros(band.shape[0] * size)
+    out[target] = band.ravel()[source]
+    return out.reshape(band.shape[0], size)

@@ -62,6 +62,30 @@ def constrained_step(J, w, gradient, c, free):
     return np.where(free, solution[:n], 0.0), solution[n:]
 
 
+def newton_kkt_step(J, W: sp.spmatrix, gradient, c, free):
+    """(d, lam) of [[W_FF, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] for a sparse symmetric W
+    (the exact Hessian of a Lagrangian), d = 0 off F; None if the system is singular.
+
+    SuperLU on the free variables' system: a Newton-SQP phase takes a handful of these where the
+    diagonal-W steps of ``constrained_step`` take hundreds, so the band LU's speed does not matter.
+    """
+    if free.sum() < J.shape[0]:
+        return None
+    columns = np.flatnonzero(free)
+    J_free = sp.csc_matrix(J if sp.issparse(J) else J.tocsc())[:, columns]
+    W_free = sp.csr_matrix(W)[columns][:, columns]
+    system = sp.bmat([[W_free, J_free.T], [J_free, None]], format="csc")
+    try:
+        solution = sp.linalg.splu(system).solve(-np.concatenate([np.asarray(gradient)[columns], c]))
+    except RuntimeError:
+        return None
+    if not np.all(np.isfinite(solution)):
+        return None
+    d = np.zeros(J.shape[1])
+    d[columns] = solution[:columns.size]
+    return d, solution[columns.size:]
+
+
 #: interleaved orders of saddle systems by J's pattern (_saddle_order): the strands of a groom share a few
 _ORDERS: dict = {}
 
