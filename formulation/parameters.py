@@ -12,6 +12,14 @@ order of BLOCKS; the single ``strand_stiffness`` of ``stiffness="strand"`` comes
 | bend_stiffness      | interior vertex | beta = k E (and gamma = k G)   | 1        | [1, 100]                 |
 | twist_stiffness     | interior vertex | gamma = k G (couple_twist off) | 1        | [1, 100]                 |
 | strand_stiffness    | strand          | s: alpha, beta, gamma = s E,G  | 1        | [1, 100]                 |
+| contact_force       | contact vertex  | l: support / D_i (normal)      | 0        | [0, CONTACT_MAX]         |
+
+``contact_force`` exists when the Problem has bodies: one entry per vertex resting on one (Problem,
+contacts), the body's push along its outward normal in units of the vertex's force scale D_i (its
+weight plus its load), placed right after that vertex's own entries so dc/dp stays banded. Its
+weight is CONTACT_WEIGHT times the vertex's share of the length: a body carrying a vertex's weight
+costs 1e-3 of what doubling one element's stiffness costs, so the regularizer prefers support by the
+body to stiffening (a light weight rather than none keeps the QP Hessian definite).
 
 Every physical slot of every stencil is either a constant or coefficient * p[index] (one entry of p),
 which keeps dc/dp an exact, constant-structure sparse matrix.
@@ -47,6 +55,10 @@ STIFFNESS_MODES = ("element", "strand", "fixed")
 BUDGETS = {"curvature_budget": 2.0, "twist_budget": 2.0}   # THETA, PHI in rad (DESIGN section 4)
 RELATIVE_LENGTH_BOX = 0.05
 STIFFNESS_BOX = (1.0, 100.0)
+#: contact_force: weight relative to the other blocks and the largest support (in vertex weights)
+CONTACT_BLOCK = "contact_force"
+CONTACT_WEIGHT = 1e-3
+CONTACT_MAX = 1e4
 _EDGE_BLOCKS = {"rest_length": 1, "stretch_stiffness": 1}
 _VERTEX_BLOCKS = {"rest_curvature": 2, "rest_twist": 1, "bend_stiffness": 1, "twist_stiffness": 1}
 
@@ -75,7 +87,9 @@ class ParameterLayout:
 
     def __init__(self, n_vertices: int, edge_lengths: np.ndarray, rest_curvature0: np.ndarray,
                  rest_twist0: np.ndarray, youngs_modulus: float, shear_modulus: float,
-                 optimize=BLOCKS, stiffness="element", couple_twist=True, bounds=None, weights=None):
+                 optimize=BLOCKS, stiffness="element", couple_twist=True, bounds=None, weights=None,
+                 contacts=()):
+        """contacts: sorted indices of the vertices (1..n-1) with a contact_force entry."""
         unknown = set(optimize) - set(BLOCKS)
         if unknown:
             raise ValueError(f"unknown parameter blocks {sorted(unknown)}; choose from {BLOCKS}")
@@ -101,7 +115,19 @@ class ParameterLayout:
                 self.blocks[b] = (first[:, None] + np.arange(w)).ravel()
                 start += w
         self.blocks = {b: self.blocks[b] for b in BLOCKS if b in self.blocks}
-        self.size = stride * n_edges - sum(vertex_widths.values()) * (n_edges - n_inner) + int(strand_level)
+        self.size = stride * n_edges - sum(vertex_widths.values()) * (n_edges - n_inner)
+        self.contacts = np.asarray(contacts, dtype=int)
+        if self.contacts.size:
+            # contact of vertex i right after vertex i's entries (after edge i - 1's if it has none;
+            # the tip's after the last edge): shift every later entry by the contacts before it
+            vertex_width = sum(vertex_widths.values())
+            after = np.where(self.contacts <= n_inner,
+                             sum(edge_widths.values()) + stride * (self.contacts - 1) + vertex_width, self.size)
+            for b, ix in self.blocks.items():
+                self.blocks[b] = ix + np.searchsorted(after, ix, side="right")
+            self.blocks[CONTACT_BLOCK] = after + np.arange(self.contacts.size)
+            self.size += self.contacts.size
+        self.size += int(strand_level)
         if strand_level:
             self.blocks[STRAND_BLOCK] = np.array([self.size - 1])
 
@@ -131,9 +157,15 @@ class ParameterLayout:
                 self.share[ix] = edge_share
             elif b in _VERTEX_BLOCKS:
                 self.share[ix] = np.repeat(share, _VERTEX_BLOCKS[b])
+            elif b == CONTACT_BLOCK:  # the vertex's half edges (the tip has one)
+                self.share[ix] = 0.5 * (lengths[self.contacts - 1] +
+                                        np.r_[lengths, 0.0][self.contacts]) / lengths.sum()
         self.weights = self.share.copy()
         for b, ix in self.blocks.items():
-            if b in defaults:
+            if b == CONTACT_BLOCK:
+                self.p0[ix], self.lower[ix], self.upper[ix] = 0.0, 0.0, CONTACT_MAX
+                self.weights[ix] *= CONTACT_WEIGHT
+            elif b in defaults:
                 p0, lo, hi = defaults[b]
                 self.p0[ix], self.lower[ix], self.upper[ix] = p0, p0 + lo, p0 + hi
             else:
@@ -231,6 +263,8 @@ class ParameterLayout:
                 k = int(hits[0])
                 if block == STRAND_BLOCK:
                     return block, "strand"
+                if block == CONTACT_BLOCK:
+                    return block, f"vertex {self.contacts[k]}"
                 if block in _EDGE_BLOCKS:
                     return block, f"edge {k}"
                 return block, f"vertex {k // _VERTEX_BLOCKS[block] + 1}"

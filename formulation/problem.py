@@ -16,7 +16,7 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-from sagfree.linalg.band import principal_band, principal_band_gather
+from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, principal_band_gather
 from sagfree.linalg.eigen import smallest_eigenpair
 
 from . import dofs
@@ -24,7 +24,9 @@ from .curvature import check_variant
 from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
 from .jacobian import JacobianPattern, StrandJacobian
-from .parameters import BLOCKS, STRAND_BLOCK, ParameterLayout
+from .bodies import parse_body
+from .contact import Contacts, contact_penalty, find_contacts
+from .parameters import BLOCKS, CONTACT_BLOCK, STRAND_BLOCK, ParameterLayout, SlotMap
 from .stencils import edge_stencil, parameter_hessians, vertex_fixed_shape, vertex_stencil
 from .strand import InvalidStrand, Strand
 
@@ -45,6 +47,10 @@ class Problem:
     4; frontend.stabilize raises stiffness where needed); False gives the paper's bare problem.
     min_eigenvalue: that margin in s^-2; None: STABILITY_FRACTION of the unstressed strand's
     smallest eigenvalue (``stability(p0)``: at p0 the rest shape is q*, so nothing is stressed).
+    bodies: rigid bodies the strand may rest on (bodies module; Body objects or their specs such as
+    "sphere:0,0,0,0.1"); each vertex of q* within contact_distance (m; None: contact.CONTACT_RADII
+    strand radii) of one gets a non-negative support force along the body's normal, one more block
+    of p (parameters.CONTACT_BLOCK), so c(p) = D^-1 S (f(q*, p) + sum_i n_i D_i l_i) (contact module).
 
     Public members beyond the API of DESIGN section 10, for the model's own modules (symbolic,
     simulation, verification) and for tests: ``edge_functions`` / ``vertex_functions`` (the compiled
@@ -57,7 +63,7 @@ class Problem:
 
     def __init__(self, strand: Strand, gravity=(0.0, 0.0, -9.81), curvature="4d", optimize=BLOCKS,
                  stiffness="element", couple_twist=True, bounds=None, weights=None, energies=TERMS,
-                 stabilize=True, min_eigenvalue=None):
+                 stabilize=True, min_eigenvalue=None, bodies=(), contact_distance=None):
         if not isinstance(strand, Strand):
             raise ValueError(strand.message if isinstance(strand, InvalidStrand) else
                              f"expected a sagfree.Strand, got {type(strand).__name__}")
@@ -74,7 +80,9 @@ class Problem:
         self.stabilize, self.min_eigenvalue = bool(stabilize), min_eigenvalue
         self.options = dict(gravity=gravity, curvature=curvature, optimize=optimize, stiffness=stiffness,
                             couple_twist=couple_twist, bounds=bounds, weights=weights, energies=energies,
-                            stabilize=stabilize, min_eigenvalue=min_eigenvalue)
+                            stabilize=stabilize, min_eigenvalue=min_eigenvalue, bodies=bodies,
+                            contact_distance=contact_distance)
+        self.bodies = tuple(parse_body(b) for b in (bodies or ()))
         n = self.n_vertices = strand.n_vertices
         points = strand.points
         first = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
@@ -97,10 +105,6 @@ class Problem:
         r = strand.radius
         self._edge_geometry = np.column_stack([l0, np.full(n - 1, r)])
         self._vertex_geometry = np.column_stack([l0[:-1], l0[1:], np.full(n - 2, r), twist, kappa])
-        self.layout = ParameterLayout(n, l0, kappa[:, :2], twist, strand.youngs_modulus,
-                                      strand.shear_modulus, optimize, stiffness, couple_twist, bounds,
-                                      weights)
-
         with np.errstate(all="ignore"):
             masses = 0.5 * strand.density * np.pi * np.float64(r) ** 2 * (np.r_[l0, 0.0] + np.r_[0.0, l0])
             self.row_scale = dofs.row_scales(masses, l0, strand.density, np.float64(r), self.gravity,
@@ -113,11 +117,26 @@ class Problem:
         self.free = dofs.free_mask(n, strand.root, strand.tip, strand.pins)
         if not self.free.any():
             raise ValueError(f"{strand!r}: its attachments prescribe every DOF; nothing is left to balance")
+        vertex_scale = self.row_scale[dofs.position_index(n)[:, 0]]
+        # the contact penalty's stiffness: the stretch stiffness E pi r^2 / lv_i of the vertex's own length
+        voronoi = 0.5 * (np.r_[l0, 0.0] + np.r_[0.0, l0])
+        self.contacts: Contacts = find_contacts(points, r, self.bodies, strand.prescribed_vertices,
+                                                strand.youngs_modulus * np.pi * r**2 / voronoi, contact_distance)
+        self.layout = ParameterLayout(n, l0, kappa[:, :2], twist, strand.youngs_modulus,
+                                      strand.shear_modulus, optimize, stiffness, couple_twist, bounds,
+                                      weights, self.contacts.vertices)
         free_row = np.full(self.q_star.size, -1)
         free_row[self.free] = np.arange(self.free.sum())
+        # a contact is a "stencil" on its vertex's 3 positions with one slot, its support l_i: its
+        # parameter Jacobian is constant, -n_i D_i (JacobianPattern scales by -1/D, so dc/dl_i = n_i)
+        contact_dofs = dofs.position_index(n)[self.contacts.vertices]
+        contact_slots = SlotMap(self.layout.blocks.get(CONTACT_BLOCK, np.zeros(0, int))[:, None],
+                                np.ones((self.contacts.count, 1)), np.zeros((self.contacts.count, 1)))
+        self._contact_jacobian = -(self.contacts.normals * vertex_scale[self.contacts.vertices, None])[:, :, None]
         self._jacobian_pattern = JacobianPattern(
             free_row, self.row_scale, int(self.free.sum()), self.layout.size,
-            [(self.edge_dofs, self.layout.edge_map), (self.vertex_dofs, self.layout.vertex_map)])
+            [(self.edge_dofs, self.layout.edge_map), (self.vertex_dofs, self.layout.vertex_map),
+             (contact_dofs, contact_slots)])
         # the stencils' inputs at q* that do not depend on p (residual and Jacobian evaluate only there)
         self._at_rest = (np.ascontiguousarray(self.q_star[self.edge_dofs]),
                          np.ascontiguousarray(self.q_star[self.vertex_dofs]),
@@ -252,8 +271,23 @@ class Problem:
 
     def forces(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """Generalized force f = -grad_q E(q, p) + f_ext (4n-1), N and N m; f_ext = gravity on the
-        lumped masses plus the strand's loads."""
-        return self.external_forces - self.elastic_gradient(p, q, frames)
+        lumped masses plus the strand's loads; at q* (q and frames None) plus the bodies' supports
+        of p (``contact_forces``). Away from q* the supports of p mean nothing: the simulation
+        has its own contact model (contact module)."""
+        f = self.external_forces - self.elastic_gradient(p, q, frames)
+        if q is None and frames is None and self.contacts.count:
+            f[dofs.position_index(self.n_vertices)] += self.contact_forces(p)
+        return f
+
+    def contact_forces(self, p) -> np.ndarray:
+        """(n, 3) force of the bodies on each vertex at q*, N: n_i D_i l_i on the contact vertices."""
+        p = self.check_parameters(p)
+        out = np.zeros((self.n_vertices, 3))
+        if self.contacts.count:
+            support = p[self.layout.blocks[CONTACT_BLOCK]]
+            scale = self.row_scale[dofs.position_index(self.n_vertices)[self.contacts.vertices, 0]]
+            out[self.contacts.vertices] = self.contacts.normals * (support * scale)[:, None]
+        return out
 
     def residual(self, p) -> np.ndarray:
         """c(p) = D^-1 S f(q*, p), unit-free, free rows in strand order."""
@@ -266,17 +300,18 @@ class Problem:
     def strand_jacobian(self, p, q=None, frames: Frames | None = None) -> StrandJacobian:
         """dc/dp with compiled products (jacobian module): what the solvers iterate with. At q* (q and
         frames None) the vertex stencils' blocks are (dk/dy)^T d(dE/dk)/d(physical) at q*
-        (stencils.FixedShapeFunctions); at another state q (frames as in ``energy``), the
+        (stencils.FixedShapeFunctions), and a support's column is its normal n_i; at another state q (frames as in ``energy``), the
         derivative of c(q, p) = D^-1 S f(q, p) there (the best effort's static sag, solvers.least_sag)."""
         edge, vertex = self.stencil_inputs(p, q, frames)
         if q is None and frames is None:
             kinematics, transposed = self.kinematics_at_rest
             (by_kinematics,) = self.vertex_fixed_functions.parameter_jacobian(kinematics, *vertex[2:])
-            vertex_jacobian = transposed @ by_kinematics
-        else:
+            vertex_jacobian, contact_jacobian = transposed @ by_kinematics, self._contact_jacobian
+        else:  # the supports act at q* only (``forces``)
             (vertex_jacobian,) = self.vertex_functions.parameter_jacobian(*vertex)
+            contact_jacobian = np.zeros_like(self._contact_jacobian)
         return StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
-            self.edge_functions.parameter_jacobian(*edge)[0], vertex_jacobian))
+            self.edge_functions.parameter_jacobian(*edge)[0], vertex_jacobian, contact_jacobian))
 
     def constraint_hessian(self, p, lam) -> sp.csr_matrix:
         """sum_r lam_r d2c_r/dp2 at q* (n_parameters square, sparse, symmetric): the curvature of the
@@ -342,6 +377,16 @@ class Problem:
         size = self.q_star.size
         return np.bincount(target, values, minlength=(HALF_BANDWIDTH + 1) * size).reshape(-1, size)
 
+    def contact_matrix(self) -> sp.csc_matrix:
+        """The supports' part of dc/dp (free DOFs x parameters, constant): n_i on the position rows of
+        contact vertex i, in the column of its support l_i (c is linear in l)."""
+        jacobian = StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
+            np.zeros((len(self.edge_dofs), 6, self.layout.edge_map.index.shape[1])),
+            np.zeros((len(self.vertex_dofs), 11, self.layout.vertex_map.index.shape[1])), self._contact_jacobian))
+        matrix = jacobian.tocsc()
+        matrix.eliminate_zeros()
+        return matrix
+
     @functools.cached_property
     def dof_masses(self) -> np.ndarray:
         """Lumped inertia per DOF (4n-1): the vertex mass m_i (kg) on positions, the edge's polar
@@ -366,7 +411,14 @@ class Problem:
         normalized so that v^T M v = 1. Linear in n: compiled shift-and-invert Lanczos on the scaled
         band M^-1/2 H M^-1/2 (linalg.eigen).
         """
-        band = self.free_band(self.hessian_band(p, q, frames))
+        if q is None and frames is None and self.contacts.count:
+            resting = self.contacts.vertices[self.check_parameters(p)[self.layout.blocks[CONTACT_BLOCK]] > 0]
+            if resting.size:
+                return self._stability_on_bodies(p, resting, vector)
+        full = self.hessian_band(p, q, frames)
+        if self.bodies and not (q is None and frames is None):
+            add_vertex_blocks(full, self.contact_hessian(q))
+        band = self.free_band(full)
         scale = 1.0 / np.sqrt(self.dof_masses[self.free_index])
         size = band.shape[1]
         scaled = np.zeros_like(band)
@@ -378,6 +430,61 @@ class Problem:
         v = np.zeros(self.q_star.size)
         v[self.free_index] = mode * scale
         return value, v
+
+    def contact_hessian(self, q) -> np.ndarray:
+        """(n, 3, 3) Hessian of the simulation's contact penalty at the state q (contact module)."""
+        held = np.zeros(self.n_vertices, dtype=bool)
+        held[self.strand.prescribed_vertices] = True
+        return contact_penalty(self.contacts, dofs.positions(self._state(q)), ~held)[2]
+
+    def _stability_on_bodies(self, p, resting: np.ndarray, vector: bool):
+        """``stability`` at q* with the vertices ``resting`` on bodies (support > 0): each moves only
+        in its body's tangent plane (a pressed frictionless contact stays closed under a small push),
+        and the support F_i = D_i l_i adds -F_i K_i (K = d2 phi/dx2) to its block: the Hessian of the
+        Lagrangian E - f.q - sum F_i phi_i restricted to the constraints' tangent space (a strand
+        pressed onto a convex body is less stable than one held at the same points). Sparse: a
+        change of basis per resting vertex to (t1, t2, n), the n coordinate dropped."""
+        n = self.n_vertices
+        positions = dofs.position_index(n)
+        hessian = self.hessian(p).tolil()
+        which = np.searchsorted(self.contacts.vertices, resting)
+        support = np.linalg.norm(self.contact_forces(p)[resting], axis=1)
+        for i, k, force in zip(resting, which, support):
+            rows = positions[i]
+            block = hessian[rows[:, None], rows].toarray() - force * self.contacts.curvature[k]
+            hessian[rows[:, None], rows] = block
+        # reduced coordinates: every free DOF, except that a resting vertex's 3 positions become 2
+        columns, rows, values = [], [], []
+        tangent = {}
+        for i, k in zip(resting, which):
+            normal = self.contacts.normals[k]
+            helper = np.eye(3)[np.argmin(np.abs(normal))]
+            t1 = np.cross(normal, helper)
+            t1 /= np.linalg.norm(t1)
+            tangent[int(positions[i, 0])] = (t1, np.cross(normal, t1))
+        count = 0
+        for dof in self.free_index:
+            vertex_start = dof - dof % 4
+            if vertex_start in tangent and dof % 4 < 3:
+                if dof % 4 == 0:
+                    for t in tangent[vertex_start]:
+                        rows.extend(vertex_start + np.arange(3))
+                        columns.extend([count] * 3)
+                        values.extend(t)
+                        count += 1
+                continue
+            rows.append(dof)
+            columns.append(count)
+            values.append(1.0)
+            count += 1
+        basis = sp.csc_matrix((values, (rows, columns)), shape=(self.q_star.size, count))
+        mass = basis.T @ sp.diags(self.dof_masses) @ basis       # diagonal: isotropic vertex masses
+        scale = 1.0 / np.sqrt(mass.diagonal())
+        reduced = sp.diags(scale) @ (basis.T @ hessian.tocsc() @ basis) @ sp.diags(scale)
+        value, mode = smallest_eigenpair(lower_band(reduced))
+        if not vector:
+            return value
+        return value, basis @ (mode * scale)
 
     def stiffening_gradient(self, p, mode: np.ndarray) -> np.ndarray:
         """d lambda / d k_j for each stiffness multiplier k_j of p (zero on the other entries): the

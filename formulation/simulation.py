@@ -5,7 +5,8 @@ x_0, th_0, x_1 when clamped, x_0 when pinned; a held tip and pins prescribe thei
 
     Phi(q) = E(q, p) - f_ext . q + 1/2 (q - y)^T W (q - y)                                    (J)
 
-with f_ext gravity on the lumped masses plus the strand's loads.
+with f_ext gravity on the lumped masses plus the strand's loads, plus, with bodies, the contact
+penalty of the contact module (frictionless; a vertex pressed by its own weight sinks 1e-3 radii).
 
 * implicit (backward) Euler with mass-proportional damping c (1/s): W = M (1/dt^2 + c/dt) and
   y = q_t + dt v_t / (1 + c dt); then grad Phi = 0 is M (v_{t+1} - v_t)/dt = f(q_{t+1}) - c M v_{t+1}
@@ -53,9 +54,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sagfree.linalg.band import add_vertex_blocks
 from sagfree.linalg.cholesky import band_cholesky, band_solve
 
 from . import dofs
+from .contact import contact_penalty
 from .frames import Frames, transport_frames, unit
 from .problem import Problem
 
@@ -169,9 +172,17 @@ class IncrementalPotential:
         self.problem, self.p, self.frames = problem, np.asarray(p, dtype=float), frames
         self.weight, self.target = inertia if inertia is not None else (None, None)
         self.scales = newton_scales(problem, self.p) if scales is None else scales
+        self._touchable = np.ones(problem.n_vertices, dtype=bool)  # the contact penalty's vertices
+        self._touchable[problem.strand.prescribed_vertices] = False
+
+    def _contact(self, q: np.ndarray):
+        """The contact penalty (contact module) at q: (energy, gradient (n, 3), Hessian blocks)."""
+        return contact_penalty(self.problem.contacts, dofs.positions(q), self._touchable)
 
     def value(self, q: np.ndarray) -> float:
         phi = self.problem.energy(self.p, q, self.frames) - self.problem.external_forces @ q
+        if self.problem.bodies:
+            phi += self._contact(q)[0]
         if self.weight is not None:
             d = q - self.target
             phi += 0.5 * d @ (self.weight * d)
@@ -179,12 +190,16 @@ class IncrementalPotential:
 
     def gradient(self, q: np.ndarray) -> np.ndarray:
         g = self.problem.elastic_gradient(self.p, q, self.frames) - self.problem.external_forces
+        if self.problem.bodies:
+            g[dofs.position_index(self.problem.n_vertices)] += self._contact(q)[1]
         if self.weight is not None:
             g += self.weight * (q - self.target)
         return g
 
     def hessian_band(self, q: np.ndarray) -> np.ndarray:
         band = self.problem.hessian_band(self.p, q, self.frames)
+        if self.problem.bodies:
+            add_vertex_blocks(band, self._contact(q)[2])
         if self.weight is not None:
             band[0] += self.weight
         return band

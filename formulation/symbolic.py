@@ -1,9 +1,10 @@
 """The whole strand's constraint c(p) as one CasADi expression, for the nlpsol baselines (DESIGN 6).
 
-    c(p) = D^-1 S (f_gravity - sum_stencils scatter(grad_y E_s(y*_s, geometry_s, physical_s(p)))),
+    c(p) = D^-1 S (f_ext - sum_stencils scatter(grad_y E_s(y*_s, geometry_s, physical_s(p)))) + C p,
     physical_s(p) = constant_s + coefficient_s * p[index_s]          (SlotMap, parameters module),
 
-built from the same per-stencil CasADi functions that the compiled evaluation uses (stencils module),
+(C p: the bodies' supports, Problem.contact_matrix, whose pattern is structure and whose normals
+are data) built from the same per-stencil CasADi functions that the compiled evaluation uses (stencils module),
 each mapped over the strand's stencils with ``Function.map``. The expression's structure depends only on
 the strand size and the Problem's options (variant, energy terms, blocks, stiffness mode, root); every
 number of one strand (q* stencil DOFs, reference frames, geometry, slot constants and coefficients,
@@ -47,7 +48,7 @@ def structure_key(problem: Problem) -> tuple:
     layout = problem.layout
     return (problem.n_vertices, problem.curvature, problem.energies, layout.size,
             layout.edge_map.index.tobytes(), layout.vertex_map.index.tobytes(),
-            problem.free.tobytes())
+            problem.free.tobytes(), problem.contacts.vertices.tobytes())
 
 
 _CACHE: dict[tuple, SymbolicNLP] = {}
@@ -75,6 +76,7 @@ def _data_values(problem: Problem) -> dict[str, np.ndarray]:
         "gravity": problem.external_forces[problem.free],
         "inverse_scale": 1.0 / problem.row_scale[problem.free],
         "p0": layout.p0, "weights": layout.weights,
+        "contact_normals": problem.contact_matrix().data,
     }
 
 
@@ -130,6 +132,10 @@ def _build(problem: Problem) -> SymbolicNLP:
                + ca.mtimes(_casadi_sparse(_scatter(problem.vertex_dofs, size, problem.free)),
                            ca.vec(vertex_gradient)))
     constraint = parts["inverse_scale"] * (parts["gravity"] - elastic)
+    if problem.contacts.count:
+        contact = problem.contact_matrix()
+        pattern = ca.Sparsity(contact.shape[0], contact.shape[1], contact.indptr.tolist(), contact.indices.tolist())
+        constraint = constraint + ca.mtimes(ca.MX(pattern, parts["contact_normals"]), p)
     difference = p - parts["p0"]
     objective = 0.5 * ca.sum1(parts["weights"] * difference * difference)
     return SymbolicNLP(p, data, objective, constraint, pieces)

@@ -21,7 +21,8 @@ import numpy as np
 from . import dofs, hand_derived
 from .curvature import VARIANTS
 from .frames import transport_frames
-from .parameters import BLOCKS, STRAND_BLOCK
+from .bodies import Sphere
+from .parameters import BLOCKS, CONTACT_BLOCK, STRAND_BLOCK
 from .problem import Problem
 from .strand import Strand
 
@@ -33,6 +34,7 @@ TERM_BLOCKS = {
     "stretch": ("rest_length", "stretch_stiffness", STRAND_BLOCK),
     "bend": ("rest_length", "rest_curvature", "bend_stiffness", STRAND_BLOCK),
     "twist": ("rest_length", "rest_twist", "bend_stiffness", "twist_stiffness", STRAND_BLOCK),
+    "contact": (CONTACT_BLOCK,),  # the bodies' supports (_check_contact)
 }
 
 
@@ -160,7 +162,36 @@ def verify(variants=VARIANTS, seed: int = 0, n: int = 12) -> list[CheckRow]:
                     _check_problem(problem, term, rng, errors)
             for quantity, (hand, fd, zero) in errors.items():
                 rows.append(CheckRow(term, quantity, label, hand, fd, zero))
+    errors = {}
+    for k, strand in enumerate(strands.values()):
+        _check_contact(strand, variants[0], np.random.default_rng([seed, k, 1]), errors)
+    rows.extend(CheckRow("contact", quantity, "any", hand, fd, zero) for quantity, (hand, fd, zero) in errors.items())
     return rows
+
+
+def _check_contact(strand: Strand, variant: str, rng, errors) -> None:
+    """The supports' columns of dc/dp (a small sphere touching the middle vertex on the outside of its
+    bend): AD (Problem.strand_jacobian) against the hand formula n_i = (x_i - c) / |x_i - c| on
+    vertex i's rows, and against finite differences."""
+    x = strand.points
+    i = strand.n_vertices // 2 + 1
+    inward = 0.5 * (x[i - 1] + x[i + 1]) - x[i]
+    inward -= inward @ (x[i + 1] - x[i - 1]) / np.sum((x[i + 1] - x[i - 1]) ** 2) * (x[i + 1] - x[i - 1])
+    if np.linalg.norm(inward) < 1e-12 * strand.length:  # straight there: any perpendicular
+        inward = np.cross(x[i + 1] - x[i - 1], rng.standard_normal(3))
+    radius = 0.3 * float(np.min(strand.edge_lengths))
+    center = x[i] - (radius + strand.radius) * inward / np.linalg.norm(inward)
+    problem = Problem(strand, curvature=variant, bodies=[Sphere(center, radius)], contact_distance=1e-9)
+    p = perturbed_parameters(problem, rng)
+    block = problem.blocks[CONTACT_BLOCK]
+    J_ad = problem.jacobian(p).toarray()[:, block]
+    J_hand = np.zeros_like(J_ad)
+    free_row = np.cumsum(problem.free) - 1
+    for column, vertex in enumerate(problem.contacts.vertices):
+        normal = strand.points[vertex] - center
+        J_hand[free_row[dofs.position_index(strand.n_vertices)[vertex]], column] = normal / np.linalg.norm(normal)
+    _record(errors, CONTACT_BLOCK, _relative(J_ad, J_hand), jacobian_error(problem, p, CONTACT_BLOCK,
+                                                                        seed=int(rng.integers(1 << 31))), False)
 
 
 def _record(errors, quantity, hand, fd, zero):

@@ -59,7 +59,15 @@ def _check(args) -> int:
 
 
 def _problem_options(args) -> dict:
-    return {"stiffness": args.stiffness, "curvature": args.curvature, "stabilize": not args.no_stabilize}
+    from sagfree.scenes.catalog import SCENE_BODIES
+
+    options = {"stiffness": args.stiffness, "curvature": args.curvature, "stabilize": not args.no_stabilize}
+    bodies = args.body if args.body is not None else list(SCENE_BODIES.get(str(args.input), ()))
+    if bodies:
+        options["bodies"] = bodies
+    if args.contact_distance is not None:
+        options["contact_distance"] = args.contact_distance
+    return options
 
 
 def _solver_options(args) -> dict:
@@ -159,7 +167,7 @@ def _simulate(args) -> int:
 def _input_arguments(command) -> None:
     command.add_argument("input", metavar="INPUT", help="strands file (.npz, .hair, .data, .obj) or built-in "
                          "scene name (default-groom, horizontal, flipped, helix, wavy, curly, cable, "
-                         "horizontal-tip-pinned)")
+                         "horizontal-tip-pinned, long-hair-on-head)")
     command.add_argument("--units", default=None, choices=("m", "cm", "mm"),
                          help="length unit of a .hair/.data/.obj file (default: cm for .hair, m otherwise)")
     command.add_argument("--root", default=None, choices=("clamped", "pinned"),
@@ -267,6 +275,12 @@ def parser() -> argparse.ArgumentParser:
     opt.add_argument("--stiffness", default="element", choices=("element", "strand", "fixed"),
                      help="stiffness per element, one per strand, or fixed (default element)")
     opt.add_argument("--curvature", default="4d", choices=VARIANTS, help="curvature variant (default 4d)")
+    opt.add_argument("--body", action="append", default=None, metavar="SPEC",
+                     help="a body the strands may rest on (repeatable): sphere:cx,cy,cz,radius, "
+                     "capsule:ax,ay,az,bx,by,bz,radius (m) or an .obj mesh in m (default: the built-in "
+                     "scene's, e.g. the head of long-hair-on-head)")
+    opt.add_argument("--contact-distance", type=float, default=None, metavar="M",
+                     help="vertices within this distance (m) of a body rest on it (default 2 strand radii)")
     opt.add_argument("--no-stabilize", action="store_true",
                      help="the bare problem: converged strands need not be stable rest states")
     opt.add_argument("--resume", action="store_true",

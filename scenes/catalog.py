@@ -14,6 +14,7 @@ from sagfree.formulation.strand import Strand
 
 from .cyhair import load_hair, save_hair
 from .groom import default_groom
+from .head import HEAD, head_groom
 from .npz import load_strands, save_parameters, save_strands
 from .obj_polylines import load_obj, save_obj
 from .synthetic import cable, curly, flipped, helix, horizontal, wavy
@@ -28,7 +29,10 @@ BUILTIN = {
     "curly": lambda: [curly()],
     "cable": lambda: [cable()],
     "horizontal-tip-pinned": lambda: [horizontal(tip="pinned")],
+    "long-hair-on-head": head_groom,
 }
+#: the bodies a built-in scene's strands rest on (specs, formulation.bodies.parse_body)
+SCENE_BODIES = {"long-hair-on-head": (HEAD.spec,)}
 #: extension -> (reader, writer); the hair formats take units and material keywords
 FORMATS = {
     ".npz": (load_strands, save_strands),

@@ -198,7 +198,7 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
         "status": np.array([r.status for r in results], dtype=str),
         "message": np.array([r.message for r in results], dtype=str),
         "solver": np.array(solver),
-        "problem_options": np.array(json.dumps(problem_options, sort_keys=True)),
+        "problem_options": np.array(json.dumps(problem_options, sort_keys=True, default=body_spec)),
         "attachments": np.array([getattr(s, "attachments", "") for s in strands], dtype=str),
         "vertex_counts": counts,
         "lengths": np.array([s.length for s in strands]),
@@ -212,7 +212,8 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
                  for k, r in enumerate(results)]
         arrays[name] = np.concatenate(parts) if parts else np.zeros((0, *width))
     write_atomically(path, lambda f: np.savez(f, **arrays))
-    summary = {"solver": solver, "problem_options": problem_options, "strands": [
+    summary = {"solver": solver, "problem_options": json.loads(json.dumps(problem_options, default=body_spec)),
+               "strands": [
         {"strand": k, "vertices": int(counts[k]), "status": r.status, "message": r.message,
          "residual_inf": r.residual_inf, "max_force_N": r.max_force, "objective": r.objective,
          "time_s": r.time, "iterations": r.iterations, "stiffening": r.stiffening,
@@ -253,6 +254,13 @@ def load_parameters(path) -> ParameterFile:
     return ParameterFile([p[offsets[k]: offsets[k + 1]] for k in range(count)], status, message,
                          str(arrays.get("solver", "unknown")), options, counts, lengths, physical, material,
                          None if attachments is None else [str(a) for a in attachments])
+
+
+def body_spec(value) -> str:
+    """JSON for a Body in the problem options: its spec (formulation.bodies.parse_body reads it)."""
+    if hasattr(value, "spec"):
+        return value.spec
+    raise TypeError(f"cannot record {value!r} in a parameters file")
 
 
 def _finite_or_none(value):

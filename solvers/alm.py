@@ -16,7 +16,10 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     Cholesky and warm-started with the previous step's active bounds, then a nonmonotone Armijo
     backtracking line search on L (memory NONMONOTONE) keeps p feasible.
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
-    stiffened where it leaves the boxes (linear_start), with least-squares multipliers. The first
+    stiffened where it leaves the boxes (linear_start), with least-squares multipliers. With bodies,
+    from p0: the linear start's supports, clipped at zero where the least-squares step pulled,
+    left the rest shape to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head),
+    and the augmented Lagrangian then lost feasibility from it. The first
     inner solve is loose (omega0 = 1). An outer iteration whose inner solve took no step only
     tightens omega: a multiplier update there adds mu c to lam without moving p, and the large
     multipliers it builds make Gauss-Newton (which omits lam^T c'') crawl.
@@ -69,7 +72,7 @@ import scipy.sparse as sp
 from sagfree.contract.optimality import KKT_TOL, TOL, gradient_scale, kkt_optimality, scaled_projected_gradient
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.jacobian import StrandJacobian
-from sagfree.formulation.parameters import REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
+from sagfree.formulation.parameters import CONTACT_BLOCK, REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import spread_rest_change, stiffest
 from sagfree.linalg.band import column_norms, gram
@@ -149,7 +152,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     attempts = feasible_rounds = 0
     if p_start is None:
         p_start = problem.p0
-        if start == "auto" and problem.layout.stiffness == "element" and any(
+        if start == "auto" and problem.layout.stiffness == "element" and CONTACT_BLOCK not in problem.blocks and any(
                 b in problem.blocks for b in STIFFNESS_BLOCKS):
             linear = linear_start(problem)
             if linear is not None:
@@ -414,19 +417,24 @@ def linear_start(problem: Problem) -> np.ndarray | None:
 
         minimize sum_R w_j d_j^2   s.t.   c(p0) + J_R d = 0     (linalg.saddle.constrained_step),
 
-    nearly balances gravity with no box; formulation.rest_change.spread_rest_change then stiffens
+    nearly balances gravity with no box (with bodies, their supports join R, clipped at 0 after:
+    a body only pushes); formulation.rest_change.spread_rest_change then stiffens
     each element just enough to bring its change into its box, keeping c. Only the root, where the
     boxes bind, starts stiffened, at |c|_inf ~1e-4 to 1e-3 with R within a few percent of the
     optimum; a start from the strand-stiffness solution (supplement section V) cost more than half of
     a strand's Gauss-Newton steps.
     """
     layout = problem.layout
-    rest = layout.block_mask(REST_BLOCKS)
+    rest = layout.block_mask((*REST_BLOCKS, CONTACT_BLOCK))
     step = constrained_step(problem.strand_jacobian(layout.p0), layout.weights, np.zeros(problem.n_parameters),
                             problem.residual(layout.p0), rest)
     if step is None or not np.all(np.isfinite(step[0])):
         return None
-    return spread_rest_change(problem, step[0])
+    p = spread_rest_change(problem, step[0])
+    if CONTACT_BLOCK in problem.blocks:  # the bodies' supports (cheap, so they carry what they can)
+        ix = problem.blocks[CONTACT_BLOCK]
+        p[ix] = np.clip(layout.p0[ix] + step[0][ix], layout.lower[ix], layout.upper[ix])
+    return p
 
 
 #: weight of R against 1/2 |c|^2 in the best-effort phase: a tie-break among least-residual points

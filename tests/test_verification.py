@@ -18,6 +18,7 @@ def test_every_term_block_and_variant_is_verified_and_passes():
     for term in ("stretch", "twist"):
         for block in (*BLOCKS, STRAND_BLOCK, "force"):
             assert (term, block, "any") in covered
+    assert ("contact", "contact_force", "any") in covered
     # the checks are not vacuous: the dependent blocks have nonzero Jacobians that were compared
     assert not any(r.structural_zero for r in rows if r.quantity in verification.TERM_BLOCKS[r.term])
 

@@ -44,7 +44,9 @@ class Result:
     raised stiffness floors (frontend.stabilize; ``problem.with_lower_bounds(floors)`` is that
     problem), else None; static_sag: for an ``infeasible`` strand, the static sag of p over L (the
     largest vertex displacement of the equilibrium q* relaxes into, formulation.simulation.equilibrium;
-    NaN otherwise).
+    NaN otherwise); contact_forces: (n, 3) the bodies' push on each vertex at q* (N; zero away from
+    them and without bodies); support: the share of the strand's weight (and loads) they carry, the
+    supports' total along -f_ext over |f_ext| summed (0 without bodies).
     """
 
     solver: str
@@ -64,6 +66,8 @@ class Result:
     physical: dict[str, np.ndarray] = field(default_factory=dict)
     floors: np.ndarray | None = None
     static_sag: float = float("nan")
+    contact_forces: np.ndarray | None = None
+    support: float = 0.0
 
     @property
     def success(self) -> bool:
@@ -124,11 +128,14 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
     if status == "converged" and not stable:
         message += (f"; the rest state is UNSTABLE (smallest eigenvalue {eigenvalue:.3g} s^-2): a push "
                     "grows and the strand leaves q*")
+    contacts = problem.contact_forces(p)
+    load = problem.external_forces[dofs.position_index(problem.n_vertices)].sum(axis=0)
+    support = float(-contacts.sum(axis=0) @ load / (load @ load)) if load @ load > 0 else 0.0
     return Result(solver, p, status, message, dict(iterations),
                   float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
                   problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
                   time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
-                  float("nan") if rest is None else rest.relative_sag)
+                  float("nan") if rest is None else rest.relative_sag, contacts, support)
 
 
 def status_counts(results: list[Result]) -> dict[str, int]:

@@ -29,7 +29,7 @@ def fingerprint(strands, solver: str, options: dict) -> str:
     """sha256 over every strand's geometry, material and attachments, the solver, the options and the version."""
     from sagfree import __version__
 
-    digest = hashlib.sha256(json.dumps([solver, options, __version__], sort_keys=True).encode())
+    digest = hashlib.sha256(json.dumps([solver, options, __version__], sort_keys=True, default=repr).encode())
     for strand in strands:
         digest.update(np.ascontiguousarray(strand.points, dtype=float).tobytes())
         for name in ("theta", "radius", "youngs_modulus", "shear_modulus", "density", "root", "tip", "pins", "loads",

@@ -210,3 +210,21 @@ def principal_band(band: np.ndarray, gather: tuple[np.ndarray, np.ndarray], size
     out = np.zeros(band.shape[0] * size)
     out[target] = band.ravel()[source]
     return out.reshape(band.shape[0], size)
+
+
+def lower_band(matrix: sp.spmatrix) -> np.ndarray:
+    """A symmetric sparse matrix in LAPACK lower band storage band[k, j] = A[j + k, j], its half
+    bandwidth the widest of its entries."""
+    coo = sp.tril(matrix).tocoo()
+    width = int((coo.row - coo.col).max(initial=0))
+    band = np.zeros((width + 1, matrix.shape[0]))
+    np.add.at(band, (coo.row - coo.col, coo.col), coo.data)
+    return band
+
+
+def add_vertex_blocks(band: np.ndarray, blocks: np.ndarray) -> None:
+    """Add symmetric 3x3 blocks (n, 3, 3) on the consecutive DOFs 4i, 4i+1, 4i+2 of a strand's lower
+    band (the vertex positions of the interleaved q), in place."""
+    for k in range(3):
+        for j in range(3 - k):
+            band[k, 4 * np.arange(len(blocks)) + j] += blocks[:, j + k, j]

@@ -1,0 +1,106 @@
+"""Contact between a strand and rigid bodies: which vertices of q* rest on a body, and the contact
+model of the forward simulation (DESIGN section 3; bodies module for the geometry).
+
+At q*: a free vertex whose centreline lies within ``contact_distance`` of a body's surface inflated
+by the strand radius, phi_b(x_i*) - r <= contact_distance, rests on body b (the nearest if several)
+and gets one unknown of the equilibrium, the body's push along the outward normal n_i =
+grad phi_b(x_i*) (parameters.CONTACT_BLOCK: non-negative, frictionless). A free vertex with its
+centreline inside a body, phi_b(x_i*) < 0, is an error. Default contact_distance: CONTACT_RADII
+strand radii (a hair combed onto a scalp lies about one radius above it).
+
+Simulation: every free vertex is kept out of every body by a penalty on the penetration of its
+contact surface, psi_ib(x) = phi_b(x) - level_ib, with level_ib = phi_b(x_i*) for a vertex resting
+on b at q* (its contact surface passes through its groomed position, so the groom's small gaps are
+not forces) and r otherwise:
+
+    E_contact = sum_ib k_i / 2 min(psi_ib(x_i), 0)^2,     k_i = E pi r^2 / lv_i,
+
+the stretch stiffness of the strand's own length lv_i at the vertex (its Voronoi length): a vertex
+sinks into a body as much as that piece of strand stretches under the same force (4e-8 of the
+length for a hair carrying a dozen of its vertex weights), and Newton's systems keep the conditioning
+the strand already has. Frictionless, like the equilibrium's contact unknowns; the gradient k psi n and the Hessian
+k (n n^T + psi K) (K = d2 phi/dx2) enter Newton's potential exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: default contact distance, in strand radii
+CONTACT_RADII = 2.0
+
+
+@dataclass
+class Contacts:
+    """The vertices of q* resting on bodies.
+
+    vertices (K,) sorted; body (K,) index into ``bodies``; normals (K, 3) outward unit normals at x*;
+    curvature (K, 3, 3) d2 phi/dx2 there (1/m); levels (n, B) each vertex's contact level per body
+    (m, the simulation's psi = phi - level); stiffness (n,) the penalty k_i (N/m).
+    """
+
+    bodies: tuple
+    vertices: np.ndarray
+    body: np.ndarray
+    normals: np.ndarray
+    curvature: np.ndarray
+    levels: np.ndarray
+    stiffness: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.vertices.size)
+
+
+def find_contacts(points: np.ndarray, radius: float, bodies, held: np.ndarray, stiffness: np.ndarray,
+                  contact_distance: float | None = None) -> Contacts:
+    """Contacts of the groomed ``points`` (n, 3) with ``bodies``; ``held``: the prescribed vertices
+    (never contacts, never checked); ``stiffness``: the penalty k_i per vertex (N/m). ValueError
+    naming the vertex and the body if a free vertex's centreline is inside a body."""
+    bodies = tuple(bodies)
+    n = len(points)
+    distance = CONTACT_RADII * radius if contact_distance is None else float(contact_distance)
+    if not (np.isfinite(distance) and distance >= 0):
+        raise ValueError(f"contact_distance must be a non-negative length (m), got {contact_distance!r}")
+    free = np.ones(n, dtype=bool)
+    free[held] = False
+    levels = np.full((n, len(bodies)), float(radius))
+    gaps = np.full((n, len(bodies)), np.inf)
+    evaluations = []
+    for b, body in enumerate(bodies):
+        phi, normal, curvature = body.evaluate(points)
+        inside = np.flatnonzero(free & (phi < 0))
+        if inside.size:
+            i = int(inside[np.argmin(phi[inside])])
+            raise ValueError(f"vertex {i} is inside {body.name} ({-phi[i]:.3g} m below its surface, the "
+                             f"deepest of {inside.size} vertices inside): move the strand or the body")
+        gaps[:, b] = np.where(free, phi - radius, np.inf)
+        evaluations.append((phi, normal, curvature))
+    nearest = np.argmin(gaps, axis=1) if bodies else np.zeros(n, dtype=int)
+    vertices = np.flatnonzero(free & (gaps.min(axis=1, initial=np.inf) <= distance)) if bodies else np.zeros(0, int)
+    body = nearest[vertices]
+    normals, curvature = np.zeros((vertices.size, 3)), np.zeros((vertices.size, 3, 3))
+    for k, (i, b) in enumerate(zip(vertices, body)):
+        phi, normal, K = evaluations[b]
+        normals[k], curvature[k] = normal[i], K[i]
+        levels[i, b] = phi[i]
+    return Contacts(bodies, vertices, body, normals, curvature, levels, np.asarray(stiffness, dtype=float))
+
+
+def contact_penalty(contacts: Contacts, x: np.ndarray, free: np.ndarray):
+    """(E_contact (J), gradient (n, 3) N, Hessian blocks (n, 3, 3) N/m) of the simulation's penalty at
+    positions x (n, 3), on the vertices where ``free`` (module docstring)."""
+    energy, gradient, hessian = 0.0, np.zeros_like(x), np.zeros((len(x), 3, 3))
+    for b, body in enumerate(contacts.bodies):
+        phi, n, K = body.evaluate(x)
+        psi = phi - contacts.levels[:, b]
+        touching = free & (psi < 0)
+        if not touching.any():
+            continue
+        k, depth = contacts.stiffness[touching], psi[touching]
+        energy += float(0.5 * np.sum(k * depth * depth))
+        gradient[touching] += (k * depth)[:, None] * n[touching]
+        hessian[touching] += k[:, None, None] * (n[touching][:, :, None] * n[touching][:, None, :]
+                                                 + depth[:, None, None] * K[touching])
+    return energy, gradient, hessian
