@@ -7,7 +7,8 @@
 2. Time against strand size: the same kind of groom strands at 25 to 200 vertices, ``asc`` and the
    predecessor.
 3. The supplement's experiments IV.A, IV.B and V (reports.experiments).
-4. The derivative verification (AD against the hand-derived formulas and finite differences).
+4. Held strands and long hair on a head, with and without it (reports.held).
+5. The derivative verification (AD against the hand-derived formulas and finite differences).
 All of it goes into ``report.md`` and ``report.pdf`` with their figures.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ from sagfree.scenes import DEFAULT_GROOM, default_groom, groom
 from sagfree.frontend.table import SOLVERS
 from sagfree.contract.result import status_counts, status_summary
 
-from . import experiments
+from . import experiments, held
 from .document import Heading, Paragraph, Table
 from .report import STILL, write_report
 from .study import run_study
@@ -89,6 +90,7 @@ def run_demo(out_dir: str | os.PathLike = "sagfree-demo", progress: bool = True,
                 1e3 * _mean_time(c.results), 1e5 * _mean_time(c.results) / n]
                for c in sweep.cases for n in [sweep.scenes[c.scene][0].n_vertices]]),
         *experiments.document_blocks(),
+        *held.document_blocks(jobs=jobs),
         Heading("Derivative verification"),
         Paragraph(f"CasADi AD against the hand-derived formulas S(7)-(19) (tolerance {HAND_TOLERANCE:g}) and "
                   f"central finite differences (tolerance {FD_TOLERANCE:g}): {passed} of {len(rows)} passed."),

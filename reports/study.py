@@ -79,12 +79,12 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
               simulate: bool = True, steps: int = 200, dt: float = 1e-3, jobs: int | None = None,
               progress: bool = False, limits: dict[str, int] | None = None,
               check_limits: dict[str, int] | None = None, solver_options: dict | None = None,
-              scheduler=None) -> Study:
+              scheduler=None, scene_options: dict[str, dict] | None = None) -> Study:
     """Solve every scene with every solver in every mode (``stiffness`` of the Problem) and simulate.
 
     limits / check_limits: solver -> largest number of strands solved / simulated per scene (default:
-    all). solver_options: solver -> keyword arguments of the solver. jobs, scheduler: as for
-    ``sagfree.optimize``.
+    all). solver_options: solver -> keyword arguments of the solver. scene_options: scene -> Problem
+    options of its strands (e.g. the bodies they rest on). jobs, scheduler: as for ``sagfree.optimize``.
     """
     # unknown or unavailable solvers and misspelled options fail before any work
     for name in solvers:
@@ -95,6 +95,7 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
     if unknown:
         raise ValueError(f"unknown parameter mode(s) {sorted(unknown)}; choose from element, strand, fixed")
     limits, check_limits, solver_options = limits or {}, check_limits or {}, solver_options or {}
+    scene_options = scene_options or {}
     study = Study(dict(scenes), settings=dict(solvers=list(solvers), modes=list(modes), simulate=simulate,
                                               steps=steps, dt=dt, limits=dict(limits),
                                               check_limits=dict(check_limits)))
@@ -104,14 +105,16 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
                 batch = strands[: limits.get(solver, len(strands))]
                 start = time.perf_counter()
                 results = optimize(batch, solver=solver, jobs=jobs, progress=progress, stiffness=mode,
-                                   solver_options=solver_options.get(solver), scheduler=scheduler)
+                                   solver_options=solver_options.get(solver), scheduler=scheduler,
+                                   **scene_options.get(scene, {}))
                 wall = time.perf_counter() - start
                 checks, check_wall = [], 0.0
                 if simulate:
                     count = min(len(batch), check_limits.get(solver, len(batch)))
                     start = time.perf_counter()
                     checks = simulate_strands(batch[:count], [r.p for r in results[:count]], steps, dt,
-                                              jobs=jobs, progress=progress, scheduler=scheduler, stiffness=mode)
+                                              jobs=jobs, progress=progress, scheduler=scheduler, stiffness=mode,
+                                              **scene_options.get(scene, {}))
                     check_wall = time.perf_counter() - start
                 study.cases.append(Case(scene, solver, mode, results, checks, wall, check_wall))
     return study

@@ -63,6 +63,7 @@ def _problem_options(args) -> dict:
 
     options = {"stiffness": args.stiffness, "curvature": args.curvature, "stabilize": not args.no_stabilize}
     bodies = args.body if args.body is not None else list(SCENE_BODIES.get(str(args.input), ()))
+    bodies = [] if bodies == ["none"] else bodies
     if bodies:
         options["bodies"] = bodies
     if args.contact_distance is not None:
@@ -221,8 +222,12 @@ def _report(args) -> int:
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     solver_options = study_options(args.option, solvers)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    from sagfree.scenes.catalog import SCENE_BODIES
+
+    scene_options = {name: {"bodies": list(SCENE_BODIES[name])} for name in scenes if name in SCENE_BODIES}
     study = run_study(scenes, solvers, modes, steps=args.steps, dt=args.dt, jobs=args.jobs,
-                      progress=not args.quiet, scheduler=args.scheduler, solver_options=solver_options)
+                      progress=not args.quiet, scheduler=args.scheduler, solver_options=solver_options,
+                      scene_options=scene_options)
     files = write_report(study, args.out, "sagfree report", pdf=not args.no_pdf)
     for case in study.cases:
         print(f"{case.scene:12} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {status_summary(case.results)}")
@@ -278,7 +283,7 @@ def parser() -> argparse.ArgumentParser:
     opt.add_argument("--body", action="append", default=None, metavar="SPEC",
                      help="a body the strands may rest on (repeatable): sphere:cx,cy,cz,radius, "
                      "capsule:ax,ay,az,bx,by,bz,radius (m) or an .obj mesh in m (default: the built-in "
-                     "scene's, e.g. the head of long-hair-on-head)")
+                     "scene's, e.g. the head of long-hair-on-head; 'none': no bodies)")
     opt.add_argument("--contact-distance", type=float, default=None, metavar="M",
                      help="vertices within this distance (m) of a body rest on it (default 2 strand radii)")
     opt.add_argument("--no-stabilize", action="store_true",
