@@ -36,6 +36,9 @@ class Contacts:
     """The vertices of q* resting on bodies.
 
     vertices (K,) sorted; body (K,) index into ``bodies``; normals (K, 3) outward unit normals at x*;
+    tangents (K, 2, 3) an orthonormal pair completing each normal; directions (K, width, 3) the
+    directions of the contact's supports (parameters.CONTACT_BLOCK): the normal alone without
+    friction, the friction pyramid's generators n + mu e (e = t1, -t1, t2, -t2) with it;
     curvature (K, 3, 3) d2 phi/dx2 there (1/m); levels (n, B) each vertex's contact level per body
     (m, the simulation's psi = phi - level); stiffness (n,) the penalty k_i (N/m).
     """
@@ -44,6 +47,8 @@ class Contacts:
     vertices: np.ndarray
     body: np.ndarray
     normals: np.ndarray
+    tangents: np.ndarray
+    directions: np.ndarray
     curvature: np.ndarray
     levels: np.ndarray
     stiffness: np.ndarray
@@ -54,7 +59,7 @@ class Contacts:
 
 
 def find_contacts(points: np.ndarray, radius: float, bodies, held: np.ndarray, stiffness: np.ndarray,
-                  contact_distance: float | None = None) -> Contacts:
+                  contact_distance: float | None = None, friction: float = 0.0) -> Contacts:
     """Contacts of the groomed ``points`` (n, 3) with ``bodies``; ``held``: the prescribed vertices
     (never contacts, never checked); ``stiffness``: the penalty k_i per vertex (N/m). ValueError
     naming the vertex and the body if a free vertex's centreline is inside a body."""
@@ -85,7 +90,22 @@ def find_contacts(points: np.ndarray, radius: float, bodies, held: np.ndarray, s
         phi, normal, K = evaluations[b]
         normals[k], curvature[k] = normal[i], K[i]
         levels[i, b] = phi[i]
-    return Contacts(bodies, vertices, body, normals, curvature, levels, np.asarray(stiffness, dtype=float))
+    tangents = tangent_pairs(normals)
+    if friction > 0:
+        sides = np.stack([tangents[:, 0], -tangents[:, 0], tangents[:, 1], -tangents[:, 1]], axis=1)
+        directions = normals[:, None, :] + friction * sides
+    else:
+        directions = normals[:, None, :]
+    return Contacts(bodies, vertices, body, normals, tangents, directions, curvature, levels,
+                    np.asarray(stiffness, dtype=float))
+
+
+def tangent_pairs(normals: np.ndarray) -> np.ndarray:
+    """(K, 2, 3): t1 = unit(n x e) with e the axis least aligned with n, t2 = n x t1."""
+    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    t1 = np.cross(normals, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return np.stack([t1, np.cross(normals, t1)], axis=1)
 
 
 def contact_penalty(contacts: Contacts, x: np.ndarray, free: np.ndarray):
@@ -104,3 +124,73 @@ def contact_penalty(contacts: Contacts, x: np.ndarray, free: np.ndarray):
         hessian[touching] += k[:, None, None] * (n[touching][:, :, None] * n[touching][:, None, :]
                                                  + depth[:, None, None] * K[touching])
     return energy, gradient, hessian
+
+
+#: the lagged friction's creep: a vertex held by static friction slides at most this many strand
+#: lengths per second (its smoothing displacement eps = FRICTION_CREEP L dt, IPC's eps_v h), unless
+#: that would make its friction spring 2 mu F / eps stiffer than the contact penalty k_i: then
+#: eps = 2 mu F / k_i (stiffer springs only add rounding: Newton's residual stalled above its floor)
+FRICTION_CREEP = 1e-6
+
+
+@dataclass
+class LaggedFriction:
+    """Friction on the vertices touching a body at the start of a step (Li et al. 2020, "Incremental
+    Potential Contact", section 5): normal force, tangent basis and position frozen there.
+
+    vertices (m,); normal_force (m,) N; tangents (m, 2, 3); anchors (m, 3) m; smoothing eps (m,) m.
+    Potential: sum_i mu F_i f0(|T_i (x_i - a_i)|) with IPC's f0 (C1 between static and sliding at
+    eps): below eps the vertex is held by a spring of stiffness 2 mu F / eps, above it the friction
+    force is mu F against the slip.
+    """
+
+    vertices: np.ndarray
+    normal_force: np.ndarray
+    tangents: np.ndarray
+    anchors: np.ndarray
+    eps: np.ndarray
+
+    def evaluate(self, x: np.ndarray, mu: float):
+        """(energy J, gradient (n, 3) N, Hessian blocks (n, 3, 3) N/m) at positions x (n, 3)."""
+        gradient, hessian = np.zeros_like(x), np.zeros((len(x), 3, 3))
+        if not self.vertices.size:
+            return 0.0, gradient, hessian
+        u = np.einsum("mkd,md->mk", self.tangents, x[self.vertices] - self.anchors)   # (m, 2)
+        y = np.linalg.norm(u, axis=1)
+        eps = self.eps
+        inside = y < eps
+        f0 = np.where(inside, -y**3 / (3 * eps**2) + y**2 / eps + eps / 3, y)
+        over_y = np.where(inside, 2 / eps - y / eps**2, 1 / np.where(y > 0, y, 1.0))     # f1(y) / y
+        slope = np.where(inside, 2 / eps - 2 * y / eps**2, 0.0)                           # f1'(y)
+        weight = mu * self.normal_force
+        gradient[self.vertices] = (weight * over_y)[:, None] * np.einsum("mkd,mk->md", self.tangents, u)
+        safe = np.where(y > 0, y, 1.0)
+        unit = u / safe[:, None]
+        local = (over_y[:, None, None] * np.eye(2)
+                 + ((slope - over_y) * (y > 0))[:, None, None] * unit[:, :, None] * unit[:, None, :])
+        hessian[self.vertices] = weight[:, None, None] * np.einsum("mkd,mkl,mle->mde", self.tangents, local,
+                                                                   self.tangents)
+        return float(np.sum(weight * f0)), gradient, hessian
+
+
+def lagged_friction(contacts: Contacts, x: np.ndarray, free: np.ndarray, creep: float, mu: float,
+                    held_forces: np.ndarray | None = None) -> LaggedFriction:
+    """The LaggedFriction of a step starting at positions x (n, 3): every free vertex inside a body's
+    contact surface (psi < 0) with its penalty force k |psi| and the body's tangents there; with
+    ``held_forces`` (n,) N, a vertex's normal force is at least that (the supports of p at q*, where
+    the penalty is still zero). creep: FRICTION_CREEP L dt (m); eps as FRICTION_CREEP says."""
+    force = np.zeros(len(x))
+    normals = np.zeros((len(x), 3))
+    for b, body in enumerate(contacts.bodies):
+        phi, n, _ = body.evaluate(x)
+        psi = phi - contacts.levels[:, b]
+        pressed = free & (psi < 0) & (contacts.stiffness * -psi > force)
+        force[pressed] = contacts.stiffness[pressed] * -psi[pressed]
+        normals[pressed] = n[pressed]
+    if held_forces is not None:
+        larger = held_forces > force
+        force[larger] = held_forces[larger]
+        normals[contacts.vertices[larger[contacts.vertices]]] = contacts.normals[larger[contacts.vertices]]
+    vertices = np.flatnonzero(force > 0)
+    eps = np.maximum(creep, 2 * mu * force[vertices] / contacts.stiffness[vertices])
+    return LaggedFriction(vertices, force[vertices], tangent_pairs(normals[vertices]), x[vertices].copy(), eps)

@@ -12,11 +12,15 @@ order of BLOCKS; the single ``strand_stiffness`` of ``stiffness="strand"`` comes
 | bend_stiffness      | interior vertex | beta = k E (and gamma = k G)   | 1        | [1, 100]                 |
 | twist_stiffness     | interior vertex | gamma = k G (couple_twist off) | 1        | [1, 100]                 |
 | strand_stiffness    | strand          | s: alpha, beta, gamma = s E,G  | 1        | [1, 100]                 |
-| contact_force       | contact vertex  | l: support / D_i (normal)      | 0        | [0, CONTACT_MAX]         |
+| contact_force       | contact vertex  | g: 1 or 4 supports / D_i       | 0        | [0, CONTACT_MAX]         |
 
-``contact_force`` exists when the Problem has bodies: one entry per vertex resting on one (Problem,
-contacts), the body's push along its outward normal in units of the vertex's force scale D_i (its
-weight plus its load), placed right after that vertex's own entries so dc/dp stays banded. Its
+``contact_force`` exists when the Problem has bodies: per vertex resting on one (Problem, contacts),
+the body's push in units of the vertex's force scale D_i (its weight plus its load), placed right
+after that vertex's own entries so dc/dp stays banded: frictionless, one entry, along the outward
+normal n; with a friction coefficient mu > 0, four, along the generators n + mu e of the friction
+pyramid (e = +-t1, +-t2, contact.Contacts.directions), whose non-negative combinations are exactly
+the forces with |f.t1| + |f.t2| <= mu f.n (inside Coulomb's cone |f_t| <= mu f_n). Either way c
+stays linear in the supports and their box is a box. Its
 weight is CONTACT_WEIGHT times the vertex's share of the length: a body carrying a vertex's weight
 costs 1e-3 of what doubling one element's stiffness costs, so the regularizer prefers support by the
 body to stiffening (a light weight rather than none keeps the QP Hessian definite).
@@ -88,8 +92,8 @@ class ParameterLayout:
     def __init__(self, n_vertices: int, edge_lengths: np.ndarray, rest_curvature0: np.ndarray,
                  rest_twist0: np.ndarray, youngs_modulus: float, shear_modulus: float,
                  optimize=BLOCKS, stiffness="element", couple_twist=True, bounds=None, weights=None,
-                 contacts=()):
-        """contacts: sorted indices of the vertices (1..n-1) with a contact_force entry."""
+                 contacts=(), contact_width: int = 1):
+        """contacts: sorted indices of the vertices (1..n-1) with contact_width contact_force entries."""
         unknown = set(optimize) - set(BLOCKS)
         if unknown:
             raise ValueError(f"unknown parameter blocks {sorted(unknown)}; choose from {BLOCKS}")
@@ -123,10 +127,12 @@ class ParameterLayout:
             vertex_width = sum(vertex_widths.values())
             after = np.where(self.contacts <= n_inner,
                              sum(edge_widths.values()) + stride * (self.contacts - 1) + vertex_width, self.size)
+            width = int(contact_width)
             for b, ix in self.blocks.items():
-                self.blocks[b] = ix + np.searchsorted(after, ix, side="right")
-            self.blocks[CONTACT_BLOCK] = after + np.arange(self.contacts.size)
-            self.size += self.contacts.size
+                self.blocks[b] = ix + width * np.searchsorted(after, ix, side="right")
+            self.blocks[CONTACT_BLOCK] = ((after + width * np.arange(self.contacts.size))[:, None]
+                                          + np.arange(width)).ravel()
+            self.size += width * self.contacts.size
         self.size += int(strand_level)
         if strand_level:
             self.blocks[STRAND_BLOCK] = np.array([self.size - 1])
@@ -158,8 +164,8 @@ class ParameterLayout:
             elif b in _VERTEX_BLOCKS:
                 self.share[ix] = np.repeat(share, _VERTEX_BLOCKS[b])
             elif b == CONTACT_BLOCK:  # the vertex's half edges (the tip has one)
-                self.share[ix] = 0.5 * (lengths[self.contacts - 1] +
-                                        np.r_[lengths, 0.0][self.contacts]) / lengths.sum()
+                half = 0.5 * (lengths[self.contacts - 1] + np.r_[lengths, 0.0][self.contacts]) / lengths.sum()
+                self.share[ix] = np.repeat(half, ix.size // self.contacts.size)
         self.weights = self.share.copy()
         for b, ix in self.blocks.items():
             if b == CONTACT_BLOCK:
@@ -264,7 +270,7 @@ class ParameterLayout:
                 if block == STRAND_BLOCK:
                     return block, "strand"
                 if block == CONTACT_BLOCK:
-                    return block, f"vertex {self.contacts[k]}"
+                    return block, f"vertex {self.contacts[k * self.contacts.size // ix.size]}"
                 if block in _EDGE_BLOCKS:
                     return block, f"edge {k}"
                 return block, f"vertex {k // _VERTEX_BLOCKS[block] + 1}"

@@ -51,6 +51,9 @@ class Problem:
     "sphere:0,0,0,0.1"); each vertex of q* within contact_distance (m; None: contact.CONTACT_RADII
     strand radii) of one gets a non-negative support force along the body's normal, one more block
     of p (parameters.CONTACT_BLOCK), so c(p) = D^-1 S (f(q*, p) + sum_i n_i D_i l_i) (contact module).
+    friction: Coulomb coefficient mu >= 0; with mu > 0 a resting vertex's support is any force of
+    the friction pyramid, four supports along its generators (contact.Contacts.directions), and the
+    simulation holds resting vertices by friction too (contact module).
 
     Public members beyond the API of DESIGN section 10, for the model's own modules (symbolic,
     simulation, verification) and for tests: ``edge_functions`` / ``vertex_functions`` (the compiled
@@ -63,7 +66,7 @@ class Problem:
 
     def __init__(self, strand: Strand, gravity=(0.0, 0.0, -9.81), curvature="4d", optimize=BLOCKS,
                  stiffness="element", couple_twist=True, bounds=None, weights=None, energies=TERMS,
-                 stabilize=True, min_eigenvalue=None, bodies=(), contact_distance=None):
+                 stabilize=True, min_eigenvalue=None, bodies=(), contact_distance=None, friction=0.0):
         if not isinstance(strand, Strand):
             raise ValueError(strand.message if isinstance(strand, InvalidStrand) else
                              f"expected a sagfree.Strand, got {type(strand).__name__}")
@@ -81,7 +84,10 @@ class Problem:
         self.options = dict(gravity=gravity, curvature=curvature, optimize=optimize, stiffness=stiffness,
                             couple_twist=couple_twist, bounds=bounds, weights=weights, energies=energies,
                             stabilize=stabilize, min_eigenvalue=min_eigenvalue, bodies=bodies,
-                            contact_distance=contact_distance)
+                            contact_distance=contact_distance, friction=friction)
+        self.friction = float(friction)
+        if not (np.isfinite(self.friction) and self.friction >= 0):
+            raise ValueError(f"friction must be a coefficient >= 0, got {friction!r}")
         self.bodies = tuple(parse_body(b) for b in (bodies or ()))
         n = self.n_vertices = strand.n_vertices
         points = strand.points
@@ -121,18 +127,21 @@ class Problem:
         # the contact penalty's stiffness: the stretch stiffness E pi r^2 / lv_i of the vertex's own length
         voronoi = 0.5 * (np.r_[l0, 0.0] + np.r_[0.0, l0])
         self.contacts: Contacts = find_contacts(points, r, self.bodies, strand.prescribed_vertices,
-                                                strand.youngs_modulus * np.pi * r**2 / voronoi, contact_distance)
+                                                strand.youngs_modulus * np.pi * r**2 / voronoi, contact_distance,
+                                                self.friction)
         self.layout = ParameterLayout(n, l0, kappa[:, :2], twist, strand.youngs_modulus,
                                       strand.shear_modulus, optimize, stiffness, couple_twist, bounds,
-                                      weights, self.contacts.vertices)
+                                      weights, self.contacts.vertices, self.contacts.directions.shape[1])
         free_row = np.full(self.q_star.size, -1)
         free_row[self.free] = np.arange(self.free.sum())
-        # a contact is a "stencil" on its vertex's 3 positions with one slot, its support l_i: its
-        # parameter Jacobian is constant, -n_i D_i (JacobianPattern scales by -1/D, so dc/dl_i = n_i)
+        # a contact is a "stencil" on its vertex's 3 positions with a slot per support g_ij: its
+        # parameter Jacobian is constant, -D_i d_ij (JacobianPattern scales by -1/D: dc/dg_ij = d_ij)
         contact_dofs = dofs.position_index(n)[self.contacts.vertices]
-        contact_slots = SlotMap(self.layout.blocks.get(CONTACT_BLOCK, np.zeros(0, int))[:, None],
-                                np.ones((self.contacts.count, 1)), np.zeros((self.contacts.count, 1)))
-        self._contact_jacobian = -(self.contacts.normals * vertex_scale[self.contacts.vertices, None])[:, :, None]
+        width = self.contacts.directions.shape[1]
+        contact_index = self.layout.blocks.get(CONTACT_BLOCK, np.zeros(0, int)).reshape(-1, width)
+        contact_slots = SlotMap(contact_index, np.ones(contact_index.shape), np.zeros(contact_index.shape))
+        self._contact_jacobian = -(self.contacts.directions.transpose(0, 2, 1)
+                                   * vertex_scale[self.contacts.vertices, None, None])
         self._jacobian_pattern = JacobianPattern(
             free_row, self.row_scale, int(self.free.sum()), self.layout.size,
             [(self.edge_dofs, self.layout.edge_map), (self.vertex_dofs, self.layout.vertex_map),
@@ -280,13 +289,14 @@ class Problem:
         return f
 
     def contact_forces(self, p) -> np.ndarray:
-        """(n, 3) force of the bodies on each vertex at q*, N: n_i D_i l_i on the contact vertices."""
+        """(n, 3) force of the bodies on each vertex at q*, N: D_i sum_j g_ij d_ij on the contact
+        vertices (d: contact.Contacts.directions)."""
         p = self.check_parameters(p)
         out = np.zeros((self.n_vertices, 3))
         if self.contacts.count:
-            support = p[self.layout.blocks[CONTACT_BLOCK]]
+            supports = p[self.layout.blocks[CONTACT_BLOCK]].reshape(self.contacts.count, -1)
             scale = self.row_scale[dofs.position_index(self.n_vertices)[self.contacts.vertices, 0]]
-            out[self.contacts.vertices] = self.contacts.normals * (support * scale)[:, None]
+            out[self.contacts.vertices] = np.einsum("kj,kjd->kd", supports, self.contacts.directions) * scale[:, None]
         return out
 
     def residual(self, p) -> np.ndarray:
@@ -412,9 +422,9 @@ class Problem:
         band M^-1/2 H M^-1/2 (linalg.eigen).
         """
         if q is None and frames is None and self.contacts.count:
-            resting = self.contacts.vertices[self.check_parameters(p)[self.layout.blocks[CONTACT_BLOCK]] > 0]
-            if resting.size:
-                return self._stability_on_bodies(p, resting, vector)
+            supports = self.check_parameters(p)[self.layout.blocks[CONTACT_BLOCK]].reshape(self.contacts.count, -1)
+            if np.any(supports > 0):
+                return self._stability_on_bodies(p, np.flatnonzero(np.any(supports > 0, axis=1)), vector)
         full = self.hessian_band(p, q, frames)
         if self.bodies and not (q is None and frames is None):
             add_vertex_blocks(full, self.contact_hessian(q))
@@ -438,30 +448,31 @@ class Problem:
         return contact_penalty(self.contacts, dofs.positions(self._state(q)), ~held)[2]
 
     def _stability_on_bodies(self, p, resting: np.ndarray, vector: bool):
-        """``stability`` at q* with the vertices ``resting`` on bodies (support > 0): each moves only
-        in its body's tangent plane (a pressed frictionless contact stays closed under a small push),
-        and the support F_i = D_i l_i adds -F_i K_i (K = d2 phi/dx2) to its block: the Hessian of the
-        Lagrangian E - f.q - sum F_i phi_i restricted to the constraints' tangent space (a strand
-        pressed onto a convex body is less stable than one held at the same points). Sparse: a
-        change of basis per resting vertex to (t1, t2, n), the n coordinate dropped."""
-        n = self.n_vertices
-        positions = dofs.position_index(n)
+        """``stability`` at q* with the contacts ``resting`` (indices into self.contacts, support > 0).
+
+        Frictionless, or at the edge of the friction pyramid (|f.t1| + |f.t2| = mu f.n: it would slip),
+        a resting vertex moves only in its body's tangent plane (a pressed contact stays closed under
+        a small push) and its normal force F adds -F K (K = d2 phi/dx2) to its block: the Hessian of
+        the Lagrangian E - f.q - sum F phi restricted to the constraints' tangent space (a strand
+        pressed onto a convex body is less stable than one held at the same points). Strictly inside
+        the pyramid it sticks: all three positions are held. Sparse: a change of basis per resting
+        vertex to (t1, t2, n), the n coordinate (or all three) dropped."""
+        positions = dofs.position_index(self.n_vertices)
         hessian = self.hessian(p).tolil()
-        which = np.searchsorted(self.contacts.vertices, resting)
-        support = np.linalg.norm(self.contact_forces(p)[resting], axis=1)
-        for i, k, force in zip(resting, which, support):
-            rows = positions[i]
-            block = hessian[rows[:, None], rows].toarray() - force * self.contacts.curvature[k]
-            hessian[rows[:, None], rows] = block
-        # reduced coordinates: every free DOF, except that a resting vertex's 3 positions become 2
-        columns, rows, values = [], [], []
+        forces = self.contact_forces(p)[self.contacts.vertices[resting]]
+        normal_force = np.einsum("kd,kd->k", forces, self.contacts.normals[resting])
+        slip = np.abs(np.einsum("kjd,kd->kj", self.contacts.tangents[resting], forces)).sum(axis=1)
+        sticks = (self.friction > 0) & (slip < self.friction * normal_force * (1 - 1e-9))
         tangent = {}
-        for i, k in zip(resting, which):
-            normal = self.contacts.normals[k]
-            helper = np.eye(3)[np.argmin(np.abs(normal))]
-            t1 = np.cross(normal, helper)
-            t1 /= np.linalg.norm(t1)
-            tangent[int(positions[i, 0])] = (t1, np.cross(normal, t1))
+        for k, force, stuck in zip(resting, normal_force, sticks):
+            rows = positions[self.contacts.vertices[k]]
+            if not stuck:
+                block = hessian[rows[:, None], rows].toarray() - force * self.contacts.curvature[k]
+                hessian[rows[:, None], rows] = block
+            tangent[int(rows[0])] = () if stuck else tuple(self.contacts.tangents[k])
+        # reduced coordinates: every free DOF, except that a resting vertex's 3 positions become its
+        # tangents (or nothing when it sticks)
+        columns, rows, values = [], [], []
         count = 0
         for dof in self.free_index:
             vertex_start = dof - dof % 4

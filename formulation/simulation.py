@@ -6,7 +6,9 @@ x_0, th_0, x_1 when clamped, x_0 when pinned; a held tip and pins prescribe thei
     Phi(q) = E(q, p) - f_ext . q + 1/2 (q - y)^T W (q - y)                                    (J)
 
 with f_ext gravity on the lumped masses plus the strand's loads, plus, with bodies, the contact
-penalty of the contact module (frictionless; a vertex pressed by its own weight sinks 1e-3 radii).
+penalty of the contact module and, with friction, its lagged friction: normal forces, tangents and
+anchors frozen at the start of each step (the static solve: at its start, as one step of 1 s),
+the first step from q* pressing with the supports of p.
 
 * implicit (backward) Euler with mass-proportional damping c (1/s): W = M (1/dt^2 + c/dt) and
   y = q_t + dt v_t / (1 + c dt); then grad Phi = 0 is M (v_{t+1} - v_t)/dt = f(q_{t+1}) - c M v_{t+1}
@@ -58,7 +60,7 @@ from sagfree.linalg.band import add_vertex_blocks
 from sagfree.linalg.cholesky import band_cholesky, band_solve
 
 from . import dofs
-from .contact import contact_penalty
+from .contact import FRICTION_CREEP, LaggedFriction, contact_penalty, lagged_friction
 from .frames import Frames, transport_frames, unit
 from .problem import Problem
 
@@ -168,8 +170,10 @@ class IncrementalPotential:
     inertial target (4n-1).
     """
 
-    def __init__(self, problem: Problem, p: np.ndarray, frames: Frames, inertia=None, scales=None):
+    def __init__(self, problem: Problem, p: np.ndarray, frames: Frames, inertia=None, scales=None,
+                 friction: LaggedFriction | None = None):
         self.problem, self.p, self.frames = problem, np.asarray(p, dtype=float), frames
+        self.friction = friction if problem.friction > 0 else None
         self.weight, self.target = inertia if inertia is not None else (None, None)
         self.scales = newton_scales(problem, self.p) if scales is None else scales
         self._touchable = np.ones(problem.n_vertices, dtype=bool)  # the contact penalty's vertices
@@ -183,6 +187,8 @@ class IncrementalPotential:
         phi = self.problem.energy(self.p, q, self.frames) - self.problem.external_forces @ q
         if self.problem.bodies:
             phi += self._contact(q)[0]
+        if self.friction is not None:
+            phi += self.friction.evaluate(dofs.positions(q), self.problem.friction)[0]
         if self.weight is not None:
             d = q - self.target
             phi += 0.5 * d @ (self.weight * d)
@@ -192,6 +198,9 @@ class IncrementalPotential:
         g = self.problem.elastic_gradient(self.p, q, self.frames) - self.problem.external_forces
         if self.problem.bodies:
             g[dofs.position_index(self.problem.n_vertices)] += self._contact(q)[1]
+        if self.friction is not None:
+            g[dofs.position_index(self.problem.n_vertices)] += self.friction.evaluate(
+                dofs.positions(q), self.problem.friction)[1]
         if self.weight is not None:
             g += self.weight * (q - self.target)
         return g
@@ -200,6 +209,8 @@ class IncrementalPotential:
         band = self.problem.hessian_band(self.p, q, self.frames)
         if self.problem.bodies:
             add_vertex_blocks(band, self._contact(q)[2])
+        if self.friction is not None:
+            add_vertex_blocks(band, self.friction.evaluate(dofs.positions(q), self.problem.friction)[2])
         if self.weight is not None:
             band[0] += self.weight
         return band
@@ -361,11 +372,29 @@ def equilibrium(problem: Problem, p, tol: float = RESIDUAL_TOLERANCE, max_steps:
     clock = time.perf_counter()
     p = problem.check_parameters(p)
     q, frames, mu = (problem.q_star, problem.frames, MU_STATIC) if start is None else (start.q, start.frames, MU_MIN)
-    potential = IncrementalPotential(problem, p, frames)
+    potential = IncrementalPotential(problem, p, frames, friction=_friction(problem, p, q, 1.0, True))
     q, record = newton_solve(potential, q, tol, max_steps, mu=mu)
     sag = _displacement(problem, q)
     return Equilibrium(q, dofs.positions(q), sag, sag / problem.strand.length, record,
                        time.perf_counter() - clock, potential.frames)
+
+
+def _friction(problem: Problem, p: np.ndarray, q: np.ndarray, dt: float, first: bool) -> LaggedFriction | None:
+    """The lagged friction of a step of ``dt`` s from q (None without friction): on the first step
+    (from q* or a state near it, where the penalty pushes nothing yet) the resting vertices press
+    with the normal forces of p's supports (contact module)."""
+    if not problem.friction > 0 or not problem.contacts.count:
+        return None
+    held = None
+    if first:
+        forces = problem.contact_forces(p)
+        held = np.zeros(problem.n_vertices)
+        held[problem.contacts.vertices] = np.einsum("kd,kd->k", forces[problem.contacts.vertices],
+                                                    problem.contacts.normals)
+    free = np.ones(problem.n_vertices, dtype=bool)
+    free[problem.strand.prescribed_vertices] = False
+    return lagged_friction(problem.contacts, dofs.positions(q), free, FRICTION_CREEP * problem.strand.length * dt,
+                           problem.friction, held)
 
 
 def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,
@@ -395,7 +424,8 @@ def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: f
         target = q + dt * v / (1.0 + damping * dt)
         if root_motion is not None:
             target[root] = problem.q_star[root] + np.tile(np.asarray(root_motion(step * dt), float), len(root) // 3)
-        potential = IncrementalPotential(problem, p, frames, (weight, target), scales)
+        potential = IncrementalPotential(problem, p, frames, (weight, target), scales,
+                                         _friction(problem, p, q, dt, step == 1))
         q_next, record = newton_solve(potential, target, tol, max_newton)
         solves.append(record)
         if not np.all(np.isfinite(q_next)):

@@ -171,8 +171,9 @@ def verify(variants=VARIANTS, seed: int = 0, n: int = 12) -> list[CheckRow]:
 
 def _check_contact(strand: Strand, variant: str, rng, errors) -> None:
     """The supports' columns of dc/dp (a small sphere touching the middle vertex on the outside of its
-    bend): AD (Problem.strand_jacobian) against the hand formula n_i = (x_i - c) / |x_i - c| on
-    vertex i's rows, and against finite differences."""
+    bend), frictionless and with friction 0.4: AD (Problem.strand_jacobian) against the hand formula
+    n_i = (x_i - c) / |x_i - c| (and the pyramid's generators n_i + mu e) on vertex i's rows, and
+    against finite differences."""
     x = strand.points
     i = strand.n_vertices // 2 + 1
     inward = 0.5 * (x[i - 1] + x[i + 1]) - x[i]
@@ -181,17 +182,28 @@ def _check_contact(strand: Strand, variant: str, rng, errors) -> None:
         inward = np.cross(x[i + 1] - x[i - 1], rng.standard_normal(3))
     radius = 0.3 * float(np.min(strand.edge_lengths))
     center = x[i] - (radius + strand.radius) * inward / np.linalg.norm(inward)
-    problem = Problem(strand, curvature=variant, bodies=[Sphere(center, radius)], contact_distance=1e-9)
-    p = perturbed_parameters(problem, rng)
-    block = problem.blocks[CONTACT_BLOCK]
-    J_ad = problem.jacobian(p).toarray()[:, block]
-    J_hand = np.zeros_like(J_ad)
-    free_row = np.cumsum(problem.free) - 1
-    for column, vertex in enumerate(problem.contacts.vertices):
-        normal = strand.points[vertex] - center
-        J_hand[free_row[dofs.position_index(strand.n_vertices)[vertex]], column] = normal / np.linalg.norm(normal)
-    _record(errors, CONTACT_BLOCK, _relative(J_ad, J_hand), jacobian_error(problem, p, CONTACT_BLOCK,
-                                                                        seed=int(rng.integers(1 << 31))), False)
+    for friction in (0.0, 0.4):
+        problem = Problem(strand, curvature=variant, bodies=[Sphere(center, radius)], contact_distance=1e-9,
+                          friction=friction)
+        p = perturbed_parameters(problem, rng)
+        block = problem.blocks[CONTACT_BLOCK]
+        J_ad = problem.jacobian(p).toarray()[:, block]
+        J_hand = np.zeros_like(J_ad)
+        free_row = np.cumsum(problem.free) - 1
+        width = block.size // problem.contacts.count
+        for k, vertex in enumerate(problem.contacts.vertices):
+            normal = strand.points[vertex] - center
+            normal /= np.linalg.norm(normal)
+            # frictionless: the normal; with friction: n + mu e for e = t1, -t1, t2, -t2 (the tangents
+            # are a convention of the contact module, taken from it; orthonormality checked here)
+            t1, t2 = problem.contacts.tangents[k]
+            assert abs(t1 @ normal) + abs(t2 @ normal) + abs(t1 @ t2) < 1e-12
+            generators = [normal] if width == 1 else [normal + friction * e for e in (t1, -t1, t2, -t2)]
+            rows = free_row[dofs.position_index(strand.n_vertices)[vertex]]
+            for j, generator in enumerate(generators):
+                J_hand[rows, k * width + j] = generator
+        _record(errors, CONTACT_BLOCK + (" (friction)" if friction else ""), _relative(J_ad, J_hand),
+                jacobian_error(problem, p, CONTACT_BLOCK, seed=int(rng.integers(1 << 31))), False)
 
 
 def _record(errors, quantity, hand, fd, zero):

@@ -68,6 +68,8 @@ def _problem_options(args) -> dict:
         options["bodies"] = bodies
     if args.contact_distance is not None:
         options["contact_distance"] = args.contact_distance
+    if args.friction:
+        options["friction"] = args.friction
     return options
 
 
@@ -286,6 +288,8 @@ def parser() -> argparse.ArgumentParser:
                      "scene's, e.g. the head of long-hair-on-head; 'none': no bodies)")
     opt.add_argument("--contact-distance", type=float, default=None, metavar="M",
                      help="vertices within this distance (m) of a body rest on it (default 2 strand radii)")
+    opt.add_argument("--friction", type=float, default=0.0, metavar="MU",
+                     help="Coulomb friction coefficient between strands and bodies (default 0: frictionless)")
     opt.add_argument("--no-stabilize", action="store_true",
                      help="the bare problem: converged strands need not be stable rest states")
     opt.add_argument("--resume", action="store_true",

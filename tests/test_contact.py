@@ -174,3 +174,47 @@ def test_bodies_travel_through_the_command_line(tmp_path, capsys):
                  "--no-push"]) == 0
     params = sagfree.scenes.npz.load_parameters(out)
     assert params.problem_options["bodies"] == ["sphere:0.05,0,-0.02005,0.02"]
+
+
+@pytest.fixture(scope="module")
+def tilted():
+    """`horizontal` touching a 5 mm ball at vertex 12, the contact normal tilted 30 degrees towards
+    the root: frictionless, the strand slides off sideways (unstable); friction holds it."""
+    strand = sagfree.scenes.horizontal(n=20)
+    return strand, Sphere(strand.points[12] - (0.005 + strand.radius) * np.array([0.5, 0, 0.866]), 0.005)
+
+
+def test_friction_keeps_the_support_inside_the_pyramid_and_matches_ipopt(tilted):
+    strand, ball = tilted
+    problem = sagfree.Problem(strand, bodies=[ball], friction=0.5, stabilize=False)
+    assert problem.blocks[CONTACT_BLOCK].size == 4            # the pyramid's generators
+    ours, ipopt = sagfree.solve(problem), sagfree.solve(problem, "ipopt")
+    assert ours.status == ipopt.status == "converged"
+    assert ours.objective == pytest.approx(ipopt.objective, rel=1e-6)
+    force = ours.contact_forces[12]
+    normal, (t1, t2) = problem.contacts.normals[0], problem.contacts.tangents[0]
+    assert abs(force @ t1) + abs(force @ t2) <= 0.5 * (force @ normal) * (1 + 1e-12)
+    assert abs(force @ t1) + abs(force @ t2) > 0.05 * (force @ normal)   # friction is used
+    frictionless = sagfree.solve(sagfree.Problem(strand, bodies=[ball], stabilize=False))
+    assert frictionless.objective > ours.objective and not frictionless.stable
+
+
+def test_a_strand_held_by_friction_is_stable_and_stays_in_the_simulation(tilted):
+    strand, ball = tilted
+    problem = sagfree.Problem(strand, bodies=[ball], friction=0.5)
+    result = sagfree.solve(problem)
+    assert result.status == "converged" and result.stable
+    assert result.iterations.get("stabilization", 0) == 0     # sticking: no stiffening needed
+    rest = equilibrium(problem, result.p)
+    assert rest.converged and rest.relative_sag <= 1e-6
+    assert push_check(problem, result.p).holds
+
+
+def test_friction_jacobian_matches_finite_differences(tilted):
+    strand, ball = tilted
+    problem = sagfree.Problem(strand, bodies=[ball], friction=0.3)
+    rng = np.random.default_rng(5)
+    p = np.clip(problem.p0 + 0.05 * rng.uniform(-1, 1, problem.n_parameters), problem.lower, problem.upper)
+    direction = rng.standard_normal(p.size) * 1e-7
+    difference = 0.5 * (problem.residual(p + direction) - problem.residual(p - direction))
+    assert np.linalg.norm(problem.jacobian(p) @ direction - difference) <= 1e-8 * np.linalg.norm(difference)
