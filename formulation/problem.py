@@ -155,7 +155,7 @@ class Problem:
         self.kinematics_at_rest = (kinematics, np.ascontiguousarray(kinematics_jacobian.transpose(0, 2, 1)))
         self.free_index = np.flatnonzero(self.free)
         self._free_row_scale = self.row_scale[self.free_index]
-        self._free_gather = principal_band_gather(self.free_index, self.q_star.size, HALF_BANDWIDTH)
+        self._free_gather = _free_gather(self.free_index, self.q_star.size)
         self._band_scatter = None  # built on the first hessian_band call
 
     def with_options(self, **changes) -> "Problem":
@@ -550,6 +550,19 @@ def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
             raise ValueError(f"strand {name} out of double-precision range ({np.min(values):.3g} to "
                              f"{np.max(values):.3g}): check the units of radius (m), moduli (Pa), density "
                              "(kg/m^3) and coordinates (m)")
+
+
+#: principal_band_gather maps of the free DOFs by (size, free DOFs): the strands of a groom share a few
+_FREE_GATHERS: dict = {}
+
+
+def _free_gather(free_index: np.ndarray, size: int):
+    key = (size, free_index.tobytes())
+    if key not in _FREE_GATHERS:
+        if len(_FREE_GATHERS) >= 16:
+            _FREE_GATHERS.pop(next(iter(_FREE_GATHERS)))
+        _FREE_GATHERS[key] = principal_band_gather(free_index, size, HALF_BANDWIDTH)
+    return _FREE_GATHERS[key]
 
 
 #: _band_scatter results by (size, stencil DOF indices): the strands of a groom share a few
