@@ -218,3 +218,17 @@ def test_friction_jacobian_matches_finite_differences(tilted):
     direction = rng.standard_normal(p.size) * 1e-7
     difference = 0.5 * (problem.residual(p + direction) - problem.residual(p - direction))
     assert np.linalg.norm(problem.jacobian(p) @ direction - difference) <= 1e-8 * np.linalg.norm(difference)
+
+
+def test_every_solver_runs_on_the_contact_problem(resting):
+    """Every solver of the table sees the supports: non-negative, and a converged one agrees with asc."""
+    problem, _ = resting
+    bare = problem.with_options(stabilize=False)
+    ours = sagfree.solve(bare)
+    block = problem.blocks[CONTACT_BLOCK]
+    for name in sagfree.SOLVERS:
+        result = sagfree.solve(bare, name)
+        assert result.p.shape == ours.p.shape, name
+        assert np.all(result.p[block] >= -1e-12), name
+        if result.status == "converged":
+            assert result.objective == pytest.approx(ours.objective, rel=1e-5), name
