@@ -46,7 +46,9 @@ class Result:
     largest vertex displacement of the equilibrium q* relaxes into, formulation.simulation.equilibrium;
     NaN otherwise); contact_forces: (n, 3) the bodies' push on each vertex at q* (N; zero away from
     them and without bodies); support: the share of the strand's weight (and loads) they carry, the
-    supports' total along -f_ext over |f_ext| summed (0 without bodies).
+    supports' total along -f_ext over |f_ext| summed (0 without bodies); setup_time: one-time cost
+    (s) the solver paid before solving and that ``time`` excludes (Ipopt: building its instance
+    for a new strand size), 0 otherwise.
     """
 
     solver: str
@@ -68,6 +70,7 @@ class Result:
     static_sag: float = float("nan")
     contact_forces: np.ndarray | None = None
     support: float = 0.0
+    setup_time: float = 0.0
 
     @property
     def success(self) -> bool:
@@ -116,7 +119,8 @@ def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, 
 
 def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, message: str,
                 iterations: dict[str, int], time: float, history: list[float] | None = None,
-                floors: np.ndarray | None = None, rest: Equilibrium | None = None) -> Result:
+                floors: np.ndarray | None = None, rest: Equilibrium | None = None,
+                setup_time: float = 0.0) -> Result:
     """Measure ``p`` on ``problem`` and package it; appends the stability verdict to the message.
     rest: where the strand rests if not at q* (an infeasible strand's static equilibrium): its
     stability is measured there, and its sag over L goes to ``static_sag``."""
@@ -135,7 +139,7 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
                   float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
                   problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
                   time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
-                  float("nan") if rest is None else rest.relative_sag, contacts, support)
+                  float("nan") if rest is None else rest.relative_sag, contacts, support, float(setup_time))
 
 
 def status_counts(results: list[Result]) -> dict[str, int]:

@@ -32,7 +32,8 @@ def with_least_sag(problem: Problem, result: Result) -> Result:
         note = f"; the static solve did not converge ({effort.rest.newton.message}), sag unknown"
     rest = effort.rest if effort.rest.converged else None
     out = make_result(problem, effort.p, result.solver, "infeasible", result.message + note, counts,
-                      result.time + time.perf_counter() - clock, result.history, result.floors, rest)
+                      result.time + time.perf_counter() - clock, result.history, result.floors, rest,
+                      setup_time=result.setup_time)
     if rest is not None and out.min_eigenvalue < problem.stability_margin:
         out.message += (f"; where it rests, its smallest eigenvalue {out.min_eigenvalue:.3g} s^-2 is below the "
                         f"margin {problem.stability_margin:.3g} s^-2")

@@ -72,6 +72,7 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
             or result.min_eigenvalue >= problem.stability_margin):
         return result
     first_objective, counts, history = result.objective, dict(result.iterations), list(result.history)
+    setup = result.setup_time
     if function is solve_alm:
         floored, result, rounds, verdict = floors_loop(solve_alm, problem, options, result)
         counts = _add(counts, result.iterations)
@@ -80,6 +81,7 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
         start = restiffen(floored, result.p, np.maximum(result.p, floored.layout.lower))
         result = function(floored, **{**options, "p_start": start})
         counts = _add(counts, result.iterations)
+        setup += result.setup_time
         value = floored.stability(result.p)
         verdict = None
         if value < problem.stability_margin and result.status == "converged":
@@ -89,8 +91,8 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
     counts["stabilization"] = rounds
     status, message = verdict if verdict else (result.status, result.message)
     message += _floors_note(problem, floored, rounds, first_objective, result.objective)
-    return make_result(problem, result.p, result.solver, status, message, counts, time.perf_counter() - clock,
-                       history, floored.layout.lower.copy())
+    return make_result(problem, result.p, result.solver, status, message, counts,
+                       time.perf_counter() - clock - setup, history, floored.layout.lower.copy(), setup_time=setup)
 
 
 def floors_loop(function, problem: Problem, options: dict, result: Result | None = None):
