@@ -18,6 +18,7 @@ from matplotlib.collections import LineCollection  # noqa: E402
 
 from sagfree.formulation.problem import Problem  # noqa: E402
 
+from .benchmarking import PROFILE_SHIFTS, common_count, comparable_cases, costs, performance_profile  # noqa: E402
 from .study import Study  # noqa: E402
 
 DPI = 130
@@ -152,7 +153,41 @@ def time_against_size(study: Study, path: Path) -> Path:
     return _save(fig, path)
 
 
+def performance_profiles(study: Study, path: Path) -> Path:
+    """Dolan-More profiles of time and major iterations per stiffness mode, over the strands of every
+    scene that all optimizing solvers ran (benchmarking module)."""
+    modes = list(dict.fromkeys(c.mode for c in study.cases))
+    fig, axes = plt.subplots(len(modes), 2, figsize=(9.0, 3.2 * len(modes)), squeeze=False)
+    for row, mode in enumerate(modes):
+        for column, kind in enumerate(("time", "iterations")):
+            table: dict[str, list] = {}
+            for scene in study.scenes:
+                cases = comparable_cases(study, scene, mode)
+                count = common_count(cases)
+                if len(cases) < 2 or count == 0:
+                    continue
+                for case in cases:
+                    table.setdefault(case.solver, []).extend(costs(case, count, kind))
+            ax = axes[row, column]
+            if len({len(v) for v in table.values()}) != 1 or len(table) < 2:
+                ax.set_visible(False)
+                continue
+            taus, rho = performance_profile({k: np.array(v) for k, v in table.items()}, PROFILE_SHIFTS[kind])
+            for solver, values in rho.items():
+                ax.step(taus, values, where="post", label=solver)
+            problems = len(next(iter(table.values())))
+            ax.set(xscale="log", ylim=(0, 1.02), xlabel=f"tau: {kind} over the best solver's on the strand",
+                   ylabel="share of strands within tau", title=f"{mode} stiffness: {kind}, {problems} strands")
+            ax.legend(fontsize=7, loc="lower right")
+    return _save(fig, path)
+
+
 FIGURES = {
+    "profiles": (performance_profiles, "Performance profiles (Dolan-More): for each solver, the share of "
+                 "strands it solves (`converged`) within a factor tau of the best solver's time (left, s, "
+                 "compilation excluded) and major iterations (right: asc and penalty-gn Gauss-Newton steps, "
+                 "ipopt iterations, osqp SQP steps; ratios of count + 1), over the strands every solver "
+                 "ran. Higher is better; the value at tau = 1 is the share where the solver is the best."),
     "convergence": (convergence, "Convergence: |c|_inf after each primal step of every solver (asc: "
                     "Gauss-Newton steps; ipopt: iterations; osqp: SQP steps; penalty-gn: Gauss-Newton), on "
                     "the first strand of each scene. Dotted: the 1e-8 tolerance."),
@@ -175,6 +210,8 @@ def draw_all(study: Study, directory: Path, sizes: Study | None = None) -> dict[
     drawn = {}
     for name, (function, _) in FIGURES.items():
         if name == "sag" and not any(c.checks for c in study.cases):
+            continue
+        if name == "profiles" and not any(len(comparable_cases(study, c.scene, c.mode)) > 1 for c in study.cases):
             continue
         drawn[name] = function(sizes if name == "time" and sizes is not None else study, directory / f"{name}.png")
     return drawn

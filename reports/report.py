@@ -7,7 +7,8 @@ Tables (one row per case = scene x mode x solver, aggregated over its strands):
 3. forward check: sag in simulation and in the static solve (over L), strands that stay within
    1e-6 L, strands that hold after a push along their softest mode, Newton steps per time step, the
    smallest mass-normalized eigenvalue (s^-2), stable rest states;
-4. every solver against ``asc`` on the same strands: time ratio and R gap;
+4. the solver comparison on common strands (benchmarking): shifted geometric means, time ratio to
+   ``asc``, R gap, and the performance profiles;
 5. per strand (small studies only): the numbers of each Result and SagCheck.
 Then the figures (figures module) and the versions of everything that produced the numbers. Every
 (case, strand) row also goes to ``results.csv`` (Study.rows), whatever the study's size.
@@ -24,6 +25,7 @@ from matplotlib.image import imread
 from sagfree.contract.result import iteration_summary, status_summary
 from sagfree.formulation.simulation import PUSH, PUSH_DT, PUSH_DURATION
 
+from . import benchmarking
 from .document import Document, Figure, Heading, Paragraph, Table, to_markdown, write_pdf
 from .environment import versions
 from .figures import FIGURES, draw_all
@@ -95,22 +97,6 @@ def check_rows(study: Study) -> list[list]:
     return rows
 
 
-def comparison_rows(study: Study) -> list[list]:
-    """Each case against asc in the same scene and mode, on the strands both solved."""
-    rows = []
-    for c in study.cases:
-        reference = study.case(c.scene, "asc", c.mode)
-        if reference is None or c.solver == "asc":
-            continue
-        pairs = list(zip(c.results, reference.results))
-        ratio = np.mean([r.time for r, _ in pairs]) / np.mean([a.time for _, a in pairs])
-        gaps = [abs(r.objective / a.objective - 1) for r, a in pairs
-                if r.status == a.status == "converged" and a.objective > 0]
-        rows.append([c.scene, c.mode, c.solver, len(pairs), status_summary([r for r, _ in pairs]),
-                     status_summary([a for _, a in pairs]), float(ratio), max(gaps) if gaps else "-"])
-    return rows
-
-
 STRAND_COLUMNS = ("scene", "strand", "mode", "solver", "status", "time_s", "residual_inf", "max_force_N",
                   "objective", "bend_max", "sag", "static_sag", "holds", "min_eigenvalue_s-2")
 
@@ -140,6 +126,20 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
     """The report of ``study``; ``intro`` and ``extra`` blocks go before and after the study tables."""
     doc = Document(title)
     doc.add(*(intro or []), Heading("Setup"), Paragraph(_setup(study)))
+    compared = benchmarking.comparison_rows(study)
+    if compared:
+        doc.add(Heading("Solver comparison"), Paragraph(
+            "Per scene and mode, on the strands every optimizing solver ran (the baselines may run fewer "
+            "than `asc`): shifted geometric means of the time per strand (shift 1 ms; compilation and "
+            "Ipopt's per-size setup excluded) and of the major iterations (shift 1; asc and penalty-gn: "
+            "Gauss-Newton steps, ipopt: its iterations, osqp: SQP steps), each with min / median / max; "
+            "`time / asc`: ratio of the shifted geometric means; `R gap`: the largest |R / R_asc - 1| "
+            "where both converged."),
+            Table(["scene", "mode", "solver", "strands", "statuses", "time (ms)", "time min/med/max (ms)",
+                   "major iterations", "iterations min/med/max", "time / asc", "R gap"], compared))
+        if figures and "profiles" in figures:
+            doc.add(Figure(str(figures["profiles"].relative_to(directory)) if directory else
+                           str(figures["profiles"]), FIGURES["profiles"][1], 1.0))
     doc.add(Heading("Convergence"), Paragraph(
         "Means per strand; |c|_inf and the residual force (N) are maxima over the strands. `converged` "
         "means |c|_inf <= 1e-8 and a KKT distance <= 1e-5 for every solver."),
@@ -164,13 +164,6 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
             "state; `stable`: strands where it is."),
             Table(["scene", "mode", "solver", "still", "hold", "push / L", "max sag / L", "max static sag / L",
                    "Newton per step", "min eigenvalue (s^-2)", "stable"], check_rows(study)))
-    compared = comparison_rows(study)
-    if compared:
-        doc.add(Heading("Against asc"), Paragraph(
-            "Each solver on the strands it solved, against `asc` on the same strands: mean time ratio, and "
-            "the largest |R / R_asc - 1| where both converged."),
-            Table(["scene", "mode", "solver", "strands", "statuses", "asc statuses", "time / asc", "R gap"],
-                  compared))
     rows = strand_rows(study)
     if len(rows) <= PER_STRAND_ROWS:
         doc.add(Heading("Per strand"), Table(["scene", "strand", "mode", "solver", "status", "ms", "abs c",
@@ -179,6 +172,8 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
     if figures:
         doc.add(Heading("Figures"))
         for name, path in figures.items():
+            if name == "profiles":
+                continue  # shown with the comparison
             width = min(1.0, imread(path).shape[1] / FULL_WIDTH_PIXELS)
             doc.add(Figure(str(path.relative_to(directory)) if directory else str(path), FIGURES[name][1], width))
     doc.add(*(extra or []))

@@ -46,7 +46,7 @@ def test_markdown_tables_carry_the_numbers_of_the_results(tiny):
         assert row[6:9] == [cell(result.residual_inf), cell(result.max_force), cell(result.objective)]
         assert row[11] == cell(case.checks[k].static_sag) and row[12] == cell(case.checks[k].holds)
         assert row[13] == cell(result.min_eigenvalue)
-    convergence = table_rows(text, "scene | mode | solver | strands | statuses")
+    convergence = table_rows(text, "scene | mode | solver | strands | statuses | ms/strand")
     for row, case in zip(convergence, study.cases):
         assert row[:4] == [case.scene, case.mode, case.solver, str(len(case.results))]
         assert row[9] == cell(max(r.residual_inf for r in case.results))
@@ -67,7 +67,7 @@ def test_pdf_is_a_multi_page_document_with_the_tables_and_figures(tiny):
     reader = pypdf.PdfReader(files.pdf)
     assert len(reader.pages) >= 3
     text = "\n".join(page.extract_text() for page in reader.pages)
-    for heading in ("Convergence", "Parameters", "Forward check", "Against asc", "Per strand", "Versions"):
+    for heading in ("Convergence", "Parameters", "Forward check", "Solver comparison", "Per strand", "Versions"):
         assert heading in text
     asc = study.case("horizontal", "asc", "element").results[0]
     assert cell(asc.objective) in text and "ipopt (CasADi plugin)" in text
