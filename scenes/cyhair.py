@@ -108,8 +108,10 @@ def load_hair(path, units: str = "cm", keep_invalid: bool = False, **material) -
             radius = 0.5 * scale * float(thickness[rows].astype(float).mean())
         else:
             radius = 0.5 * scale * default if default > 0 else MATERIAL["radius"]
-        strands.append(make_strand(arrays["points"][rows].astype(float) * scale, f"{path}: strand {k}",
-                                   keep_invalid, **{**MATERIAL, "radius": radius, **material}))
+        with np.errstate(invalid="ignore", over="ignore"):  # a corrupt file's NaN / huge values: the
+            points = arrays["points"][rows].astype(float) * scale  # strand's validation names them
+        strands.append(make_strand(points, f"{path}: strand {k}", keep_invalid,
+                                   **{**MATERIAL, "radius": radius, **material}))
     return strands
 
 
