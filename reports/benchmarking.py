@@ -25,6 +25,31 @@ SHIFTS = {"time": 1e-3, "iterations": 1.0}
 PROFILE_SHIFTS = {"time": 0.0, "iterations": 1.0}
 #: the iteration count of each solver that a comparison uses (module docstring)
 MAJOR_ITERATIONS = {"asc": "gauss_newton", "ipopt": "ipopt", "osqp": "sqp", "penalty-gn": "gauss_newton"}
+#: the report's iteration columns: column -> solver -> the Result.iterations counts summed into it
+#: (a solver without an entry has no such level, "-")
+ITERATION_COLUMNS = {
+    "outer": {"asc": ("outer",)},
+    "major": {solver: (key,) for solver, key in MAJOR_ITERATIONS.items()},
+    "inner": {"asc": ("cg", "expansion", "proportioning"), "osqp": ("admm",)},
+    "factorizations": {"asc": ("factorizations",)},
+}
+#: what each column counts, per solver (the report's glossary)
+ITERATION_GLOSSARY = (
+    "Iterations per strand (means): `outer`: augmented Lagrangian updates (asc); `major`: linearizations "
+    "of c (asc and penalty-gn: Gauss-Newton steps; ipopt: its iterations; osqp: SQP steps); `inner`: "
+    "steps of the QP solves (asc: MPRGP's conjugate-gradient, expansion and proportioning steps; osqp: "
+    "ADMM iterations); `factorizations`: banded Cholesky factorizations (asc; Ipopt and OSQP factor "
+    "inside their libraries and do not report it). `-`: the solver has no such level.")
+
+
+def iteration_cells(case: Case) -> list:
+    """The mean of each ITERATION_COLUMNS count over the case's strands ("-" where it has none)."""
+    cells = []
+    for per_solver in ITERATION_COLUMNS.values():
+        keys = per_solver.get(case.solver)
+        cells.append(float(np.mean([sum(r.iterations.get(k, 0) for k in keys) for r in case.results]))
+                     if keys and case.results else "-")
+    return cells
 
 
 def shifted_geometric_mean(values, shift: float) -> float:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.image import imread
 
-from sagfree.contract.result import iteration_summary, status_summary
+from sagfree.contract.result import status_summary
 from sagfree.formulation.simulation import PUSH, PUSH_DT, PUSH_DURATION
 
 from . import benchmarking
@@ -51,16 +51,34 @@ def _nanmax(values) -> float:
     return float(max(values)) if values else float("nan")
 
 
+CONVERGENCE_HEADER = ["scene", "mode", "solver", "strands", "statuses", "ms/strand", "wall (s)",
+                      *benchmarking.ITERATION_COLUMNS, "max abs c", "max force (N)", "mean R"]
+
+
 def convergence_rows(study: Study) -> list[list]:
     rows = []
     for c in study.cases:
         res = c.results
         rows.append([c.scene, c.mode, c.solver, len(res), status_summary(res),
-                     1e3 * float(np.mean([r.time for r in res])), c.wall, iteration_summary(res),
-                     float(np.mean([r.iterations.get("factorizations", 0) for r in res])),
+                     1e3 * float(np.mean([r.time for r in res])), c.wall, *benchmarking.iteration_cells(c),
                      _nanmax(r.residual_inf for r in res), _nanmax(r.max_force for r in res),
                      float(np.nanmean([r.objective for r in res]))])
     return rows
+
+
+def without_constant_columns(header: list[str], rows: list[list], names=("scene", "mode")):
+    """(header, rows, note): the columns among ``names`` whose value is the same on every row
+    dropped, and the note saying their value ("scene `x`, mode element")."""
+    drop = [k for k, name in enumerate(header) if name in names and len(rows) > 1
+            and len({str(row[k]) for row in rows}) == 1]
+    note = ", ".join(f"{header[k]} `{rows[0][k]}`" for k in drop)
+    keep = [k for k in range(len(header)) if k not in drop]
+    return [header[k] for k in keep], [[row[k] for k in keep] for row in rows], note
+
+
+def _table(header: list[str], rows: list[list]) -> tuple[Table, str]:
+    header, rows, note = without_constant_columns(header, rows)
+    return Table(header, rows), (f" All rows: {note}." if note else "")
 
 
 def parameter_rows(study: Study) -> list[list]:
@@ -106,6 +124,18 @@ def strand_rows(study: Study) -> list[list]:
     return [[1e3 * row[k] if k == "time_s" else row[k] for k in STRAND_COLUMNS] for row in study.rows()]
 
 
+def _note_and_table(header, rows) -> list:
+    """[the note on dropped constant columns (if any), the table]."""
+    table, note = _table(header, rows)
+    return ([Paragraph(note.strip())] if note else []) + [table]
+
+
+def _warm_note(study: Study) -> str:
+    """'; first run: compiling / loading the model X s (asc), ...' for the one-time costs above 0.1 s."""
+    costs = [f"{c.warm:.1f} s ({c.solver})" for c in study.cases if c.warm > 0.1]
+    return "; one-time cost of compiling or loading the model, not in any time: " + ", ".join(costs) if costs else ""
+
+
 def _setup(study: Study) -> str:
     scenes = "; ".join(f"`{name}`: {len(s)} strands of {min(x.n_vertices for x in s)}"
                        + (f"-{max(x.n_vertices for x in s)}" if len({x.n_vertices for x in s}) > 1 else "")
@@ -118,12 +148,17 @@ def _setup(study: Study) -> str:
             f"{', '.join(st['modes'])}. Forward check: {st['steps']} implicit-Euler steps of {st['dt']:g} s "
             "from rest at the groomed shape, then the static equilibrium from it, Newton tolerance below "
             "the round-off floor" + (f" ({checks} strands)" if checks else "") + ". Times are per strand "
-            "in one process; wall times are for the whole batch on all cores.")
+            "in one process, without compiling or loading the model (each process warms up first); wall "
+            "times are for the whole batch on all cores" + _warm_note(study) + ". Sag: the largest vertex displacement from the "
+            "groomed shape, over the strand length L (in the simulation from rest, or at the static "
+            "equilibrium the groomed shape relaxes into).")
 
 
 def build_document(study: Study, title: str, intro: list | None = None, figures: dict[str, Path] | None = None,
-                   directory: Path | None = None, extra: list | None = None) -> Document:
-    """The report of ``study``; ``intro`` and ``extra`` blocks go before and after the study tables."""
+                   directory: Path | None = None, extra: list | None = None,
+                   appendix: list | None = None) -> Document:
+    """The report of ``study``; ``intro`` and ``extra`` blocks go before and after the study tables,
+    ``appendix`` blocks after the versions."""
     doc = Document(title)
     doc.add(*(intro or []), Heading("Setup"), Paragraph(_setup(study)))
     compared = benchmarking.comparison_rows(study)
@@ -135,24 +170,26 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
             "Gauss-Newton steps, ipopt: its iterations, osqp: SQP steps), each with min / median / max; "
             "`time / asc`: ratio of the shifted geometric means; `R gap`: the largest |R / R_asc - 1| "
             "where both converged."),
-            Table(["scene", "mode", "solver", "strands", "statuses", "time (ms)", "time min/med/max (ms)",
-                   "major iterations", "iterations min/med/max", "time / asc", "R gap"], compared))
+            *_note_and_table(["scene", "mode", "solver", "strands", "statuses", "time (ms)",
+                              "time min/med/max (ms)", "major iterations", "iterations min/med/max",
+                              "time / asc", "R gap"], compared))
         if figures and "profiles" in figures:
             doc.add(Figure(str(figures["profiles"].relative_to(directory)) if directory else
                            str(figures["profiles"]), FIGURES["profiles"][1], 1.0))
+    table, note = _table(CONVERGENCE_HEADER, convergence_rows(study))
     doc.add(Heading("Convergence"), Paragraph(
-        "Means per strand; |c|_inf and the residual force (N) are maxima over the strands. `converged` "
-        "means |c|_inf <= 1e-8 and a KKT distance <= 1e-5 for every solver."),
-        Table(["scene", "mode", "solver", "strands", "statuses", "ms/strand", "wall s", "iterations (mean)",
-               "factorizations", "max abs c", "max force N", "mean R"], convergence_rows(study)))
+        "Means per strand; |c|_inf (unit-free: each row's force over its DOF's weight) and the residual "
+        "force (N) are maxima over the strands; R is the regularizer (unit-free). `converged` means "
+        "|c|_inf <= 1e-8 and a KKT distance <= 1e-5 for every solver. " + benchmarking.ITERATION_GLOSSARY
+        + note), table)
     doc.add(Heading("Parameters"), Paragraph(
         "Stiffening per block over converged strands: max / mean ratio to the specified stiffness / share "
         "of elements above 1.01 (strand mode: the one multiplier, shown as bend; twist: `-` where it follows "
         "bend, the default). Rest-shape change: the "
         "largest absolute change of the block's normalized parameter (in brackets: as a share of its box "
         "half-width)."),
-        Table(["scene", "mode", "solver", "strands", "bend", "stretch", "twist", "rest length",
-               "rest curvature", "rest twist"], parameter_rows(study)))
+        *_note_and_table(["scene", "mode", "solver", "strands", "bend", "stretch", "twist", "rest length",
+                          "rest curvature", "rest twist"], parameter_rows(study)))
     if any(c.checks for c in study.cases):
         doc.add(Heading("Forward check"), Paragraph(
             f"`still`: strands that moved at most {STILL:g} of their length both in simulation from rest and "
@@ -162,13 +199,14 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
             "the strand length. `min eigenvalue`: the smallest mass-normalized eigenvalue of the free-DOF "
             "Hessian at the groomed shape (omega^2 of the slowest mode, s^-2), positive for a stable rest "
             "state; `stable`: strands where it is."),
-            Table(["scene", "mode", "solver", "still", "hold", "push / L", "max sag / L", "max static sag / L",
-                   "Newton per step", "min eigenvalue (s^-2)", "stable"], check_rows(study)))
+            *_note_and_table(["scene", "mode", "solver", "still", "hold", "push / L", "max sag / L",
+                              "max static sag / L", "Newton per step", "min eigenvalue (s^-2)", "stable"],
+                             check_rows(study)))
     rows = strand_rows(study)
     if len(rows) <= PER_STRAND_ROWS:
         doc.add(Heading("Per strand"), Table(["scene", "strand", "mode", "solver", "status", "ms", "abs c",
-                                              "max force N", "R", "bend max", "sag / L", "static sag / L",
-                                              "min eigenvalue"], rows))
+                                              "max force (N)", "R", "bend max", "sag / L", "static sag / L",
+                                              "min eigenvalue (s^-2)"], rows))
     if figures:
         doc.add(Heading("Figures"))
         for name, path in figures.items():
@@ -178,17 +216,19 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
             doc.add(Figure(str(path.relative_to(directory)) if directory else str(path), FIGURES[name][1], width))
     doc.add(*(extra or []))
     doc.add(Heading("Versions"), Table(["component", "version"], [[k, v] for k, v in versions().items()]))
+    doc.add(*(appendix or []))
     return doc
 
 
 def write_report(study: Study, out_dir, title: str = "sagfree report", intro: list | None = None,
-                 extra: list | None = None, pdf: bool = True, sizes: Study | None = None) -> ReportFiles:
+                 extra: list | None = None, pdf: bool = True, sizes: Study | None = None,
+                 appendix: list | None = None) -> ReportFiles:
     """Draw the figures and write report.md (and report.pdf) into ``out_dir``; ``sizes``: a study of
     strands at several sizes for the time figure (default: the study itself)."""
     directory = Path(out_dir)
     directory.mkdir(parents=True, exist_ok=True)
     figures = draw_all(study, directory / "figures", sizes)
-    document = build_document(study, title, intro, figures, directory, extra)
+    document = build_document(study, title, intro, figures, directory, extra, appendix)
     markdown = directory / "report.md"
     markdown.write_text(to_markdown(document))
     write_csv(study, directory / "results.csv")

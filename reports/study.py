@@ -17,6 +17,7 @@ from sagfree.formulation.strand import Strand
 from sagfree.frontend.batch import optimize, simulate_strands
 from sagfree.frontend.options import check_options
 from sagfree.frontend.table import SOLVERS, solver_entry
+from sagfree.frontend.warm import warm_up
 
 MODES = ("element", "strand")
 
@@ -26,7 +27,9 @@ class Case:
     """One solver in one parameter mode on (the first strands of) one scene.
 
     results: one Result per solved strand; checks: one SagCheck per simulated strand (the first
-    ones); wall, check_wall: wall time (s) of the batch solve and of the simulations.
+    ones); wall, check_wall: wall time (s) of the batch solve and of the simulations; warm: the
+    one-time cost (s) of compiling or loading the model before the batch (frontend.warm), outside
+    ``wall`` (0 when this process was already warm).
     """
 
     scene: str
@@ -36,6 +39,7 @@ class Case:
     checks: list[SagCheck]
     wall: float
     check_wall: float
+    warm: float = 0.0
 
     @property
     def label(self) -> str:
@@ -103,6 +107,8 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
         for mode in modes:
             for solver in solvers:
                 batch = strands[: limits.get(solver, len(strands))]
+                options = {"stiffness": mode, **scene_options.get(scene, {})}
+                warm = warm_up(solver, solver_options.get(solver), options) if batch else 0.0
                 start = time.perf_counter()
                 results = optimize(batch, solver=solver, jobs=jobs, progress=progress, stiffness=mode,
                                    solver_options=solver_options.get(solver), scheduler=scheduler,
@@ -116,5 +122,5 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
                                               jobs=jobs, progress=progress, scheduler=scheduler, stiffness=mode,
                                               **scene_options.get(scene, {}))
                     check_wall = time.perf_counter() - start
-                study.cases.append(Case(scene, solver, mode, results, checks, wall, check_wall))
+                study.cases.append(Case(scene, solver, mode, results, checks, wall, check_wall, warm))
     return study

@@ -49,7 +49,10 @@ def test_markdown_tables_carry_the_numbers_of_the_results(tiny):
     convergence = table_rows(text, "scene | mode | solver | strands | statuses | ms/strand")
     for row, case in zip(convergence, study.cases):
         assert row[:4] == [case.scene, case.mode, case.solver, str(len(case.results))]
-        assert row[9] == cell(max(r.residual_inf for r in case.results))
+        assert row[11] == cell(max(r.residual_inf for r in case.results))
+        major = "gauss_newton"  # asc and penalty-gn: the major iterations are Gauss-Newton steps
+        assert row[8] == ("-" if case.solver == "naive" else
+                          cell(float(np.mean([r.iterations[major] for r in case.results]))))
     with open(files.markdown.parent / "results.csv") as f:
         table = list(csv.DictReader(f))
     assert [(row["solver"], row["status"], float(row["objective"])) for row in table] == \
@@ -59,6 +62,14 @@ def test_markdown_tables_carry_the_numbers_of_the_results(tiny):
     assert len(asc) == 4 and all(row[3] in ("1/1", "2/2") for row in asc)  # optimized strands stand still
     assert all(row[4] in ("1/1", "2/2") for row in asc)  # ... and hold after a push
     assert all(row[3].startswith("0/") and row[4].startswith("0/") for row in checks if row[2] == "naive")
+
+
+def test_constant_columns_are_dropped_and_named():
+    from sagfree.reports.report import without_constant_columns
+
+    header, rows, note = without_constant_columns(["scene", "mode", "solver", "ms"],
+                                                  [["groom", "element", "asc", 1.0], ["groom", "strand", "ipopt", 2.0]])
+    assert header == ["mode", "solver", "ms"] and rows[1] == ["strand", "ipopt", 2.0] and note == "scene `groom`"
 
 
 def test_pdf_is_a_multi_page_document_with_the_tables_and_figures(tiny):
