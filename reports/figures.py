@@ -3,7 +3,7 @@ strand, strands coloured by stiffening (like the supplement's Fig. 4), sag naive
 time against strand size.
 
 Stiffening is the bend modulus over the strand's Young's modulus at each interior vertex (1 =
-as specified), read through ``Problem.physical`` so that every mode (element, strand) is comparable.
+as specified), read from ``Result.physical`` so that every mode (element, strand) is comparable.
 """
 from __future__ import annotations
 
@@ -16,8 +16,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
-from sagfree.formulation.problem import Problem  # noqa: E402
-
 from .benchmarking import PROFILE_SHIFTS, common_count, comparable_cases, costs, performance_profile  # noqa: E402
 from .study import Study  # noqa: E402
 
@@ -29,10 +27,10 @@ MAX_DRAWN = 200
 SAG_FLOOR = 1e-14
 
 
-def bend_multiplier(strand, mode: str, p: np.ndarray) -> np.ndarray:
-    """Bend modulus / E per interior vertex."""
-    problem = Problem(strand, stiffness=mode)
-    return problem.physical(p)["bend_modulus"] / strand.youngs_modulus
+def bend_multiplier(strand, result) -> np.ndarray:
+    """Bend modulus / E per interior vertex, from the Result's physical parameters (Problem.physical,
+    whatever mode and bodies the Problem had)."""
+    return np.asarray(result.physical["bend_modulus"]) / strand.youngs_modulus
 
 
 def _save(fig, path: Path) -> Path:
@@ -75,7 +73,7 @@ def stiffening_profile(study: Study, path: Path) -> Path:
         for case in study.cases:
             if case.scene == scene and case.solver in STIFFENING_SOLVERS and case.results \
                     and case.results[0].status == "converged":
-                s = bend_multiplier(strand, case.mode, case.results[0].p)
+                s = bend_multiplier(strand, case.results[0])
                 ax.plot(np.linspace(0, 1, s.size + 2)[1:-1], s, marker=".", markersize=3, label=case.label)
         ax.axhline(1.0, color="gray", linestyle=":", linewidth=0.8)
         ax.set(title=f"{scene}: strand 0", xlabel="arc length / L (root at 0)", ylabel="bend modulus / E")
@@ -87,7 +85,7 @@ def strands_by_stiffening(study: Study, path: Path, solver: str = "asc") -> Path
     """Every scene's strands (side view, x-z), each segment coloured by its bend multiplier."""
     scenes = list(study.scenes)
     fig, axes = _scene_axes(len(scenes), 4.2, 4.2)
-    norm = matplotlib.colors.LogNorm(1.0, 10.0)
+    drawn = []
     for ax, scene in zip(axes, scenes):
         case = study.case(scene, solver, "element") or next(
             (c for c in study.cases if c.scene == scene and c.solver == solver), None)
@@ -96,19 +94,26 @@ def strands_by_stiffening(study: Study, path: Path, solver: str = "asc") -> Path
         for k, strand in enumerate(strands):
             x = strand.points[:, [0, 2]]
             if case is not None and k < len(case.results) and case.results[k].status == "converged":
-                s = bend_multiplier(strand, case.mode, case.results[k].p)
+                s = bend_multiplier(strand, case.results[k])
                 per_edge = np.r_[s[0], np.maximum(s[:-1], s[1:]), s[-1]]
             else:
                 per_edge = np.full(len(x) - 1, np.nan)
             segments.extend(np.stack([x[:-1], x[1:]], axis=1))
             colours.extend(per_edge)
-        lines = LineCollection(segments, cmap="viridis", norm=norm, linewidths=2.0 if len(strands) < 10 else 0.6)
-        lines.set_array(np.clip(np.array(colours), 1.0, 10.0))
+        lines = LineCollection(segments, cmap="viridis", linewidths=2.0 if len(strands) < 10 else 0.6)
+        lines.set_array(np.maximum(np.array(colours), 1.0))
         ax.add_collection(lines)
+        drawn.append(lines)
         ax.autoscale()
         ax.set_aspect("equal")
         ax.set(title=f"{scene}: {case.label if case else 'not solved'}", xlabel="x (m)", ylabel="z (m)")
-    fig.colorbar(lines, ax=list(axes[: len(scenes)]), label="bend modulus / E", shrink=0.8)
+    # one logarithmic colour scale spanning the data of every panel (at least 1 to 2)
+    values = np.concatenate([np.asarray(lines.get_array()) for lines in drawn])
+    top = max(2.0, float(np.nanmax(values))) if np.isfinite(values).any() else 2.0
+    norm = matplotlib.colors.LogNorm(1.0, top)
+    for lines in drawn:
+        lines.set_norm(norm)
+    fig.colorbar(drawn[-1], ax=list(axes[: len(scenes)]), label="bend modulus / E", shrink=0.8)
     fig.savefig(path, dpi=DPI, bbox_inches="tight")
     plt.close(fig)
     return path

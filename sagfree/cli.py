@@ -238,6 +238,18 @@ def _report(args) -> int:
     return 1 if failed else 0
 
 
+def _study(args) -> int:
+    from sagfree.contract.result import status_summary
+    from sagfree.reports.study_file import run_study_file
+
+    study, files = run_study_file(args.file, args.out, jobs=args.jobs, progress=not args.quiet, pdf=not args.no_pdf)
+    for case in study.cases:
+        print(f"{case.scene:24} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {status_summary(case.results)}")
+    print(f"wrote {files.markdown}" + (f" and {files.pdf}" if files.pdf else ""))
+    failed = any(r.status != "converged" for c in study.cases if c.solver == "asc" for r in c.results)
+    return 1 if failed else 0
+
+
 def parser() -> argparse.ArgumentParser:
     from sagfree.formulation.curvature import VARIANTS
 
@@ -333,6 +345,17 @@ def parser() -> argparse.ArgumentParser:
     _simulation_arguments(rep)
     _batch_arguments(rep)
     rep.set_defaults(run=_report)
+
+    stu = sub.add_parser("study", help="a study declared in a TOML file, written as report.md and report.pdf",
+                         description="Run the study a TOML file declares (scenes or strand files, solvers, "
+                         "stiffness modes, curvature variants, solver options, strand subsets, simulation "
+                         "checks; see sagfree/reports/study_file.py and the examples in studies/) and write "
+                         "its report. Exit code 1 if asc did not converge on a strand, 2 for a malformed file.")
+    stu.add_argument("file", metavar="STUDY.toml", help="the study file")
+    stu.add_argument("--out", default=None, help="output directory (default: the file's 'out', else its name)")
+    stu.add_argument("--no-pdf", action="store_true", help="write report.md only")
+    _batch_arguments(stu)
+    stu.set_defaults(run=_study)
     return top
 
 
