@@ -17,7 +17,7 @@ from sagfree.formulation.strand import Strand
 from sagfree.frontend.batch import optimize, simulate_strands
 from sagfree.frontend.options import check_options
 from sagfree.frontend.table import SOLVERS, solver_entry
-from sagfree.frontend.warm import warm_up
+from sagfree.frontend.warm import announced_warm_up
 
 MODES = ("element", "strand")
 
@@ -108,7 +108,7 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
             for solver in solvers:
                 batch = strands[: limits.get(solver, len(strands))]
                 options = {"stiffness": mode, **scene_options.get(scene, {})}
-                warm = warm_up(solver, solver_options.get(solver), options) if batch else 0.0
+                warm = announced_warm_up(solver, solver_options.get(solver), options, progress) if batch else 0.0
                 start = time.perf_counter()
                 results = optimize(batch, solver=solver, jobs=jobs, progress=progress, stiffness=mode,
                                    solver_options=solver_options.get(solver), scheduler=scheduler,

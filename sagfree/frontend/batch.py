@@ -29,7 +29,7 @@ from sagfree.formulation.strand import Strand
 from .options import check_options, check_problem_options
 from .stabilize import solve_stabilized
 from .table import solver_entry
-from .warm import is_warm, warm_up
+from .warm import announced_warm_up, warm_up
 
 #: Seconds a strand may take before a batch on worker processes declares its chunk hung.
 STRAND_TIMEOUT = 600.0
@@ -153,13 +153,8 @@ def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_optio
     # usage errors (unknown solver, missing plugin, misspelled option) are raised once, before any work
     solver_options = check_options(solver, solver_options)
     check_problem_options(problem_options)
-    if strands and not is_warm(solver, problem_options):
-        # in this process, so that forked workers start warm; the screen says what the wait is
-        if progress:
-            print(f"{solver}: loading the compiled model (compiling it on the first run only) ...", flush=True)
-        seconds = warm_up(solver, solver_options, problem_options)
-        if progress:
-            print(f"{solver}: model ready in {seconds:.1f} s (not counted in any solver's time)", flush=True)
+    if strands:  # in this process, so that forked workers start warm; the screen says what the wait is
+        announced_warm_up(solver, solver_options, problem_options, progress)
     return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
                        jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk, strand_timeout)
 

@@ -31,7 +31,21 @@ def _key(solver: str, problem_options: dict) -> tuple:
 
 
 def is_warm(solver: str, problem_options: dict) -> bool:
+    problem_options = {k: v for k, v in problem_options.items() if k in _MODEL_OPTIONS}
     return _key(solver, problem_options) in _WARM
+
+
+def announced_warm_up(solver: str, solver_options: dict | None = None, problem_options: dict | None = None,
+                      progress: bool = True) -> float:
+    """``warm_up``, saying on the screen (with ``progress``) what the wait is when there is one."""
+    if is_warm(solver, problem_options or {}):
+        return 0.0
+    if progress:
+        print(f"{solver}: loading the compiled model (compiling it on the first run only) ...", flush=True)
+    seconds = warm_up(solver, solver_options, problem_options)
+    if progress:
+        print(f"{solver}: model ready in {seconds:.1f} s (not counted in any solver's time)", flush=True)
+    return seconds
 
 
 def warm_up(solver: str, solver_options: dict | None = None, problem_options: dict | None = None) -> float:
