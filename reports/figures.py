@@ -13,6 +13,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
@@ -64,19 +65,41 @@ def convergence(study: Study, path: Path) -> Path:
     return _save(fig, path)
 
 
+#: arclength samples of the stiffening profiles
+PROFILE_SAMPLES = 60
+
+
+def stiffening_along_arclength(strand, result) -> np.ndarray:
+    """The bend multiplier at PROFILE_SAMPLES points of arclength / L in [0, 1], linear between the
+    interior vertices (held constant towards the root and the tip)."""
+    arc = np.r_[0.0, np.cumsum(strand.edge_lengths)] / strand.length
+    return np.interp(np.linspace(0.0, 1.0, PROFILE_SAMPLES), arc[1:-1], bend_multiplier(strand, result))
+
+
 def stiffening_profile(study: Study, path: Path) -> Path:
-    """Bend multiplier along the first strand of every scene, per solver and mode."""
+    """Bend multiplier along arclength over every converged strand of each scene: the median and the
+    10-90% band per solver and mode (the supplement's Fig. 4 as a study figure)."""
     scenes = list(study.scenes)
     fig, axes = _scene_axes(len(scenes))
+    grid = np.linspace(0.0, 1.0, PROFILE_SAMPLES)
     for ax, scene in zip(axes, scenes):
-        strand = study.scenes[scene][0]
+        strands = study.scenes[scene]
         for case in study.cases:
-            if case.scene == scene and case.solver in STIFFENING_SOLVERS and case.results \
-                    and case.results[0].status == "converged":
-                s = bend_multiplier(strand, case.results[0])
-                ax.plot(np.linspace(0, 1, s.size + 2)[1:-1], s, marker=".", markersize=3, label=case.label)
+            if case.scene != scene or case.solver not in STIFFENING_SOLVERS:
+                continue
+            profiles = [stiffening_along_arclength(strands[k], r) for k, r in enumerate(case.results)
+                        if r.status == "converged"]
+            if not profiles:
+                continue
+            low, middle, high = np.percentile(np.array(profiles), [10, 50, 90], axis=0)
+            line, = ax.plot(grid, middle, label=f"{case.label}, {len(profiles)} strands")
+            if len(profiles) > 1:
+                ax.fill_between(grid, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.axhline(1.0, color="gray", linestyle=":", linewidth=0.8)
-        ax.set(title=f"{scene}: strand 0", xlabel="arc length / L (root at 0)", ylabel="bend modulus / E")
+        ax.set(title=scene, xlabel="arc length / L (root at 0)", ylabel="bend modulus / E", yscale="log")
+        ax.yaxis.set_major_locator(matplotlib.ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.legend(fontsize=6)
     return _save(fig, path)
 
@@ -197,7 +220,9 @@ FIGURES = {
                     "Gauss-Newton steps; ipopt: iterations; osqp: SQP steps; penalty-gn: Gauss-Newton), on "
                     "the first strand of each scene. Dotted: the 1e-8 tolerance."),
     "stiffening": (stiffening_profile, "Stiffening along the strand: bend modulus over the specified "
-                   "Young's modulus at each interior vertex, first strand of each scene."),
+                   "Young's modulus (1: as specified) against arc length over the strand length, over every "
+                   "strand each solver converged on: the median (line) and the 10-90% band, per solver and "
+                   "stiffness mode."),
     "strands": (strands_by_stiffening, "Strands seen from the side (x-z), coloured by the bend "
                 "multiplier of our solver's parameters (per element where the study has that mode), as "
                 "in the supplement's Fig. 4."),
