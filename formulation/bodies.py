@@ -15,6 +15,7 @@ the mesh subtends, 4 pi inside, 0 outside), which tolerates small cracks in a sc
 """
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from pathlib import Path
 
 import numba
@@ -52,11 +53,20 @@ def parse_body(spec) -> "Body":
                      "(m) or an .obj mesh")
 
 
-class Body:
-    """Base: ``name`` for messages, ``spec`` to rebuild it (parse_body); subclasses give
-    ``_evaluate(x) -> (phi, n, K)``."""
+class Body(ABC):
+    """Base: ``name`` for messages; subclasses give ``_evaluate(x) -> (phi, n, K)`` and ``spec``, the
+    text ``parse_body`` rebuilds them from."""
 
     name = "body"
+
+    @property
+    @abstractmethod
+    def spec(self) -> str:
+        """The body as text (parse_body), e.g. "sphere:0,0,0,0.1"."""
+
+    @abstractmethod
+    def _evaluate(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(phi, n, K) at the points x (m, 3)."""
 
     def signed_distance(self, x) -> np.ndarray:
         return self._evaluate(_points(x))[0]
@@ -70,9 +80,6 @@ class Body:
     def evaluate(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(phi (m,), n (m, 3), K (m, 3, 3)) at the points x (m, 3)."""
         return self._evaluate(_points(x))
-
-    def _evaluate(self, x):  # pragma: no cover - abstract
-        raise NotImplementedError
 
 
 def _round(offset: np.ndarray, radius: float):
@@ -137,9 +144,10 @@ class Capsule(Body):
 
 
 class Mesh(Body):
-    """A closed triangle mesh: ``vertices`` (V, 3) in m, ``faces`` (F, 3) vertex indices."""
+    """A closed triangle mesh: ``vertices`` (V, 3) in m, ``faces`` (F, 3) vertex indices; ``path``:
+    the OBJ file in m it was read from, if any (its ``spec``)."""
 
-    def __init__(self, vertices, faces, name: str = "mesh"):
+    def __init__(self, vertices, faces, name: str = "mesh", path: str | None = None):
         self.vertices = np.ascontiguousarray(vertices, dtype=float)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or not np.all(np.isfinite(self.vertices)):
@@ -148,7 +156,7 @@ class Mesh(Body):
                 or self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
             raise ValueError(f"{name}: faces must be a non-empty (F, 3) array of vertex indices "
                              f"in 0..{len(self.vertices) - 1}")
-        self.name = name
+        self.name, self.path = name, path
 
     @staticmethod
     def load(path, units: str = "m") -> "Mesh":
@@ -172,14 +180,11 @@ class Mesh(Body):
                 raise ValueError(f"{path}, line {number}: cannot read {line.strip()!r}") from None
         if not faces:
             raise ValueError(f"{path}: no faces ('f' records): not a triangle mesh")
-        mesh = Mesh(np.array(vertices) * scale, np.array(faces), name=path.name)
-        mesh.path = str(path.resolve()) if units == "m" else None
-        return mesh
+        return Mesh(np.array(vertices) * scale, np.array(faces), name=path.name,
+                    path=str(path.resolve()) if units == "m" else None)
 
     def _evaluate(self, x):
         return _mesh_distance(np.ascontiguousarray(x), self.vertices, self.faces)
-
-    path: str | None = None  # the OBJ file it was loaded from (in m), for ``spec``
 
     @property
     def spec(self) -> str:

@@ -3,8 +3,9 @@ model of the forward simulation (DESIGN section 3; bodies module for the geometr
 
 At q*: a free vertex whose centreline lies within ``contact_distance`` of a body's surface inflated
 by the strand radius, phi_b(x_i*) - r <= contact_distance, rests on body b (the nearest if several)
-and gets one unknown of the equilibrium, the body's push along the outward normal n_i =
-grad phi_b(x_i*) (parameters.CONTACT_BLOCK: non-negative, frictionless). A free vertex with its
+and gets unknowns of the equilibrium, the body's push along the outward normal n_i =
+grad phi_b(x_i*) or, with friction, along the friction pyramid's generators (parameters.CONTACT_BLOCK,
+non-negative). A free vertex with its
 centreline inside a body, phi_b(x_i*) < 0, is an error. Default contact_distance: CONTACT_RADII
 strand radii (a hair combed onto a scalp lies about one radius above it).
 
@@ -18,8 +19,8 @@ not forces) and r otherwise:
 the stretch stiffness of the strand's own length lv_i at the vertex (its Voronoi length): a vertex
 sinks into a body as much as that piece of strand stretches under the same force (4e-8 of the
 length for a hair carrying a dozen of its vertex weights), and Newton's systems keep the conditioning
-the strand already has. Frictionless, like the equilibrium's contact unknowns; the gradient k psi n and the Hessian
-k (n n^T + psi K) (K = d2 phi/dx2) enter Newton's potential exactly.
+the strand already has. The gradient k psi n and the Hessian k (n n^T + psi K) (K = d2 phi/dx2)
+enter Newton's potential exactly. With friction, LaggedFriction adds IPC's lagged friction.
 """
 from __future__ import annotations
 
@@ -108,14 +109,19 @@ def tangent_pairs(normals: np.ndarray) -> np.ndarray:
     return np.stack([t1, np.cross(normals, t1)], axis=1)
 
 
+def _penetrations(contacts: Contacts, x: np.ndarray, free: np.ndarray):
+    """Per body: (touching, psi, n, K) at positions x, touching = the free vertices with psi < 0."""
+    for b, body in enumerate(contacts.bodies):
+        phi, n, K = body.evaluate(x)
+        psi = phi - contacts.levels[:, b]
+        yield free & (psi < 0), psi, n, K
+
+
 def contact_penalty(contacts: Contacts, x: np.ndarray, free: np.ndarray):
     """(E_contact (J), gradient (n, 3) N, Hessian blocks (n, 3, 3) N/m) of the simulation's penalty at
     positions x (n, 3), on the vertices where ``free`` (module docstring)."""
     energy, gradient, hessian = 0.0, np.zeros_like(x), np.zeros((len(x), 3, 3))
-    for b, body in enumerate(contacts.bodies):
-        phi, n, K = body.evaluate(x)
-        psi = phi - contacts.levels[:, b]
-        touching = free & (psi < 0)
+    for touching, psi, n, K in _penetrations(contacts, x, free):
         if not touching.any():
             continue
         k, depth = contacts.stiffness[touching], psi[touching]
@@ -181,10 +187,8 @@ def lagged_friction(contacts: Contacts, x: np.ndarray, free: np.ndarray, creep: 
     the penalty is still zero). creep: FRICTION_CREEP L dt (m); eps as FRICTION_CREEP says."""
     force = np.zeros(len(x))
     normals = np.zeros((len(x), 3))
-    for b, body in enumerate(contacts.bodies):
-        phi, n, _ = body.evaluate(x)
-        psi = phi - contacts.levels[:, b]
-        pressed = free & (psi < 0) & (contacts.stiffness * -psi > force)
+    for touching, psi, n, _ in _penetrations(contacts, x, free):
+        pressed = touching & (contacts.stiffness * -psi > force)
         force[pressed] = contacts.stiffness[pressed] * -psi[pressed]
         normals[pressed] = n[pressed]
     if held_forces is not None:

@@ -310,8 +310,9 @@ class Problem:
     def strand_jacobian(self, p, q=None, frames: Frames | None = None) -> StrandJacobian:
         """dc/dp with compiled products (jacobian module): what the solvers iterate with. At q* (q and
         frames None) the vertex stencils' blocks are (dk/dy)^T d(dE/dk)/d(physical) at q*
-        (stencils.FixedShapeFunctions), and a support's column is its normal n_i; at another state q (frames as in ``energy``), the
-        derivative of c(q, p) = D^-1 S f(q, p) there (the best effort's static sag, solvers.least_sag)."""
+        (stencils.FixedShapeFunctions), and a support's column its direction (contact.Contacts.directions);
+        at another state q (frames as in ``energy``), the derivative of c(q, p) = D^-1 S f(q, p) there
+        (the best effort's static sag, solvers.least_sag)."""
         edge, vertex = self.stencil_inputs(p, q, frames)
         if q is None and frames is None:
             kinematics, transposed = self.kinematics_at_rest
@@ -388,8 +389,9 @@ class Problem:
         return np.bincount(target, values, minlength=(HALF_BANDWIDTH + 1) * size).reshape(-1, size)
 
     def contact_matrix(self) -> sp.csc_matrix:
-        """The supports' part of dc/dp (free DOFs x parameters, constant): n_i on the position rows of
-        contact vertex i, in the column of its support l_i (c is linear in l)."""
+        """The supports' part of dc/dp (free DOFs x parameters, constant): each support's direction
+        (the normal, or a friction pyramid generator) on its vertex's position rows, in its column (c is
+        linear in the supports; the Ipopt baseline's NLP adds it as C p, formulation.symbolic)."""
         jacobian = StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
             np.zeros((len(self.edge_dofs), 6, self.layout.edge_map.index.shape[1])),
             np.zeros((len(self.vertex_dofs), 11, self.layout.vertex_map.index.shape[1])), self._contact_jacobian))
@@ -441,11 +443,16 @@ class Problem:
         v[self.free_index] = mode * scale
         return value, v
 
+    @functools.cached_property
+    def free_vertices(self) -> np.ndarray:
+        """(n,) True for the vertices whose positions are not prescribed (those a body can touch)."""
+        free = np.ones(self.n_vertices, dtype=bool)
+        free[self.strand.prescribed_vertices] = False
+        return free
+
     def contact_hessian(self, q) -> np.ndarray:
         """(n, 3, 3) Hessian of the simulation's contact penalty at the state q (contact module)."""
-        held = np.zeros(self.n_vertices, dtype=bool)
-        held[self.strand.prescribed_vertices] = True
-        return contact_penalty(self.contacts, dofs.positions(self._state(q)), ~held)[2]
+        return contact_penalty(self.contacts, dofs.positions(self._state(q)), self.free_vertices)[2]
 
     def _stability_on_bodies(self, p, resting: np.ndarray, vector: bool):
         """``stability`` at q* with the contacts ``resting`` (indices into self.contacts, support > 0).
@@ -455,43 +462,35 @@ class Problem:
         a small push) and its normal force F adds -F K (K = d2 phi/dx2) to its block: the Hessian of
         the Lagrangian E - f.q - sum F phi restricted to the constraints' tangent space (a strand
         pressed onto a convex body is less stable than one held at the same points). Strictly inside
-        the pyramid it sticks: all three positions are held. Sparse: a change of basis per resting
-        vertex to (t1, t2, n), the n coordinate (or all three) dropped."""
-        positions = dofs.position_index(self.n_vertices)
-        hessian = self.hessian(p).tolil()
-        forces = self.contact_forces(p)[self.contacts.vertices[resting]]
+        the pyramid it sticks: all three positions are held. Sparse: the free DOFs with each resting
+        vertex's 3 positions replaced by its tangents (or by nothing when it sticks), kept in strand
+        order so the reduced Hessian stays banded."""
+        vertices = self.contacts.vertices[resting]
+        forces = self.contact_forces(p)[vertices]
         normal_force = np.einsum("kd,kd->k", forces, self.contacts.normals[resting])
         slip = np.abs(np.einsum("kjd,kd->kj", self.contacts.tangents[resting], forces)).sum(axis=1)
         sticks = (self.friction > 0) & (slip < self.friction * normal_force * (1 - 1e-9))
-        tangent = {}
-        for k, force, stuck in zip(resting, normal_force, sticks):
-            rows = positions[self.contacts.vertices[k]]
-            if not stuck:
-                block = hessian[rows[:, None], rows].toarray() - force * self.contacts.curvature[k]
-                hessian[rows[:, None], rows] = block
-            tangent[int(rows[0])] = () if stuck else tuple(self.contacts.tangents[k])
-        # reduced coordinates: every free DOF, except that a resting vertex's 3 positions become its
-        # tangents (or nothing when it sticks)
-        columns, rows, values = [], [], []
-        count = 0
-        for dof in self.free_index:
-            vertex_start = dof - dof % 4
-            if vertex_start in tangent and dof % 4 < 3:
-                if dof % 4 == 0:
-                    for t in tangent[vertex_start]:
-                        rows.extend(vertex_start + np.arange(3))
-                        columns.extend([count] * 3)
-                        values.extend(t)
-                        count += 1
-                continue
-            rows.append(dof)
-            columns.append(count)
-            values.append(1.0)
-            count += 1
-        basis = sp.csc_matrix((values, (rows, columns)), shape=(self.q_star.size, count))
+        positions = dofs.position_index(self.n_vertices)[vertices]               # (m, 3)
+        # -F K on the blocks of the vertices that may slide
+        sliding = ~sticks
+        blocks = -normal_force[sliding, None, None] * self.contacts.curvature[resting[sliding]]
+        block_rows = np.repeat(positions[sliding], 3, axis=1)
+        block_cols = np.tile(positions[sliding], (1, 3))
+        hessian = (self.hessian(p) + sp.csr_matrix((blocks.ravel(), (block_rows.ravel(), block_cols.ravel())),
+                                                   shape=(self.q_star.size,) * 2)).tocsc()
+        # reduced coordinates, each with the DOF it sits at (sort key): kept free DOFs, then tangents
+        kept = np.setdiff1d(self.free_index, positions.ravel())
+        tangents = self.contacts.tangents[resting[sliding]]                       # (s, 2, 3)
+        keys = np.concatenate([kept, np.repeat(positions[sliding, 0], 2) + np.tile([0.0, 0.5], sliding.sum())])
+        rows = np.concatenate([kept, np.repeat(positions[sliding], 2, axis=0).ravel()])
+        columns = np.concatenate([np.arange(kept.size), kept.size + np.repeat(np.arange(2 * sliding.sum()), 3)])
+        values = np.concatenate([np.ones(kept.size), tangents.reshape(-1)])
+        order = np.empty(keys.size, dtype=int)
+        order[np.argsort(keys, kind="stable")] = np.arange(keys.size)
+        basis = sp.csc_matrix((values, (rows, order[columns])), shape=(self.q_star.size, keys.size))
         mass = basis.T @ sp.diags(self.dof_masses) @ basis       # diagonal: isotropic vertex masses
         scale = 1.0 / np.sqrt(mass.diagonal())
-        reduced = sp.diags(scale) @ (basis.T @ hessian.tocsc() @ basis) @ sp.diags(scale)
+        reduced = sp.diags(scale) @ (basis.T @ hessian @ basis) @ sp.diags(scale)
         value, mode = smallest_eigenpair(lower_band(reduced))
         if not vector:
             return value

@@ -176,12 +176,10 @@ class IncrementalPotential:
         self.friction = friction if problem.friction > 0 else None
         self.weight, self.target = inertia if inertia is not None else (None, None)
         self.scales = newton_scales(problem, self.p) if scales is None else scales
-        self._touchable = np.ones(problem.n_vertices, dtype=bool)  # the contact penalty's vertices
-        self._touchable[problem.strand.prescribed_vertices] = False
 
     def _contact(self, q: np.ndarray):
         """The contact penalty (contact module) at q: (energy, gradient (n, 3), Hessian blocks)."""
-        return contact_penalty(self.problem.contacts, dofs.positions(q), self._touchable)
+        return contact_penalty(self.problem.contacts, dofs.positions(q), self.problem.free_vertices)
 
     def value(self, q: np.ndarray) -> float:
         phi = self.problem.energy(self.p, q, self.frames) - self.problem.external_forces @ q
@@ -391,10 +389,8 @@ def _friction(problem: Problem, p: np.ndarray, q: np.ndarray, dt: float, first: 
         held = np.zeros(problem.n_vertices)
         held[problem.contacts.vertices] = np.einsum("kd,kd->k", forces[problem.contacts.vertices],
                                                     problem.contacts.normals)
-    free = np.ones(problem.n_vertices, dtype=bool)
-    free[problem.strand.prescribed_vertices] = False
-    return lagged_friction(problem.contacts, dofs.positions(q), free, FRICTION_CREEP * problem.strand.length * dt,
-                           problem.friction, held)
+    return lagged_friction(problem.contacts, dofs.positions(q), problem.free_vertices,
+                           FRICTION_CREEP * problem.strand.length * dt, problem.friction, held)
 
 
 def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: float = 0.0,

@@ -191,18 +191,22 @@ def _check_contact(strand: Strand, variant: str, rng, errors) -> None:
         J_hand = np.zeros_like(J_ad)
         free_row = np.cumsum(problem.free) - 1
         width = block.size // problem.contacts.count
+        frame_error = 0.0
         for k, vertex in enumerate(problem.contacts.vertices):
             normal = strand.points[vertex] - center
             normal /= np.linalg.norm(normal)
             # frictionless: the normal; with friction: n + mu e for e = t1, -t1, t2, -t2 (the tangents
-            # are a convention of the contact module, taken from it; orthonormality checked here)
+            # are a convention of the contact module, taken from it; their orthonormality counts in
+            # the hand error)
             t1, t2 = problem.contacts.tangents[k]
-            assert abs(t1 @ normal) + abs(t2 @ normal) + abs(t1 @ t2) < 1e-12
+            frame_error = max(frame_error, abs(t1 @ normal) + abs(t2 @ normal) + abs(t1 @ t2),
+                              abs(t1 @ t1 - 1) + abs(t2 @ t2 - 1))
             generators = [normal] if width == 1 else [normal + friction * e for e in (t1, -t1, t2, -t2)]
             rows = free_row[dofs.position_index(strand.n_vertices)[vertex]]
             for j, generator in enumerate(generators):
                 J_hand[rows, k * width + j] = generator
-        _record(errors, CONTACT_BLOCK + (" (friction)" if friction else ""), _relative(J_ad, J_hand),
+        _record(errors, CONTACT_BLOCK + (" (friction)" if friction else ""),
+                max(_relative(J_ad, J_hand), frame_error),
                 jacobian_error(problem, p, CONTACT_BLOCK, seed=int(rng.integers(1 << 31))), False)
 
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sagfree.contract.result import status_summary
+
 from .study import Case, Study
 
 #: shift of the shifted geometric mean, per cost
@@ -123,18 +125,11 @@ def comparison_rows(study: Study) -> list[list]:
                 mean_time = shifted_geometric_mean(times, SHIFTS["time"])
                 gaps = ([abs(r.objective / a.objective - 1) for r, a in zip(results, reference.results[:count])
                          if r.status == a.status == "converged" and a.objective > 0] if reference else [])
-                rows.append([scene, mode, case.solver, count, _statuses(results),
+                rows.append([scene, mode, case.solver, count, status_summary(results),
                              1e3 * mean_time, _spread(1e3 * times),
                              shifted_geometric_mean(iterations, SHIFTS["iterations"]), _spread(iterations),
                              mean_time / asc_time, max(gaps) if gaps and case.solver != "asc" else "-"])
     return rows
-
-
-def _statuses(results) -> str:
-    counts = {}
-    for r in results:
-        counts[r.status] = counts.get(r.status, 0) + 1
-    return ", ".join(f"{k} {v}" for k, v in counts.items())
 
 
 def _spread(values) -> str:

@@ -43,7 +43,7 @@ from sagfree.formulation.curvature import VARIANTS
 from sagfree.frontend.options import check_options
 from sagfree.frontend.table import SOLVERS, solver_entry
 from sagfree.scenes import load
-from sagfree.scenes.catalog import SCENE_BODIES
+from sagfree.scenes.catalog import BUILTIN, SCENE_BODIES
 
 TOP_KEYS = {"title": str, "out": str, "solvers": list, "modes": list, "curvatures": list, "simulate": bool,
             "steps": int, "dt": float, "limits": dict, "check_limits": dict, "scenes": list, "options": dict}
@@ -129,8 +129,7 @@ def load_study_file(path) -> StudySpec:
         if "source" not in scene:
             fail("scenes", "a [[scenes]] table needs a source (a built-in scene or a strands file)")
         source = scene["source"]
-        where = source if not Path(source).suffix else str((path.parent / source) if not Path(source).is_absolute()
-                                                           else source)
+        where = source if source in BUILTIN else str(path.parent / source)  # files: relative to the study
         try:
             strands = load(where, scene.get("units"), keep_invalid=True)
         except (ValueError, FileNotFoundError) as exc:

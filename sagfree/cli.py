@@ -214,7 +214,6 @@ def _batch_arguments(command) -> None:
 
 
 def _report(args) -> int:
-    from sagfree.contract.result import status_summary
     from sagfree.reports.report import write_report
     from sagfree.reports.study import run_study
     from sagfree.scenes import load
@@ -231,20 +230,24 @@ def _report(args) -> int:
                       progress=not args.quiet, scheduler=args.scheduler, solver_options=solver_options,
                       scene_options=scene_options)
     files = write_report(study, args.out, "sagfree report", pdf=not args.no_pdf)
-    for case in study.cases:
-        print(f"{case.scene:12} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {status_summary(case.results)}")
-    print(f"wrote {files.markdown}" + (f" and {files.pdf}" if files.pdf else ""))
-    failed = any(r.status != "converged" for c in study.cases if c.solver == "asc" for r in c.results)
-    return 1 if failed else 0
+    return _study_summary(study, files)
 
 
 def _study(args) -> int:
-    from sagfree.contract.result import status_summary
     from sagfree.reports.study_file import run_study_file
 
     study, files = run_study_file(args.file, args.out, jobs=args.jobs, progress=not args.quiet, pdf=not args.no_pdf)
+    return _study_summary(study, files)
+
+
+def _study_summary(study, files) -> int:
+    """A line per case and the files written; exit code 1 if asc did not converge on a strand."""
+    from sagfree.contract.result import status_summary
+
+    width = max(12, *(len(case.scene) for case in study.cases))
     for case in study.cases:
-        print(f"{case.scene:24} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   {status_summary(case.results)}")
+        print(f"{case.scene:{width}} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   "
+              f"{status_summary(case.results)}")
     print(f"wrote {files.markdown}" + (f" and {files.pdf}" if files.pdf else ""))
     failed = any(r.status != "converged" for c in study.cases if c.solver == "asc" for r in c.results)
     return 1 if failed else 0

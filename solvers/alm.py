@@ -17,9 +17,9 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     backtracking line search on L (memory NONMONOTONE) keeps p feasible.
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
     stiffened where it leaves the boxes (linear_start), with least-squares multipliers. With bodies,
-    from p0: the linear start's supports, clipped at zero where the least-squares step pulled,
-    left the rest shape to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head),
-    and the augmented Lagrangian then lost feasibility from it. The first
+    from p0: the same step with the supports (clipped at zero where it pulled) left the rest shape
+    to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
+    Lagrangian then lost feasibility from it. The first
     inner solve is loose (omega0 = 1). An outer iteration whose inner solve took no step only
     tightens omega: a multiplier update there adds mu c to lam without moving p, and the large
     multipliers it builds make Gauss-Newton (which omits lam^T c'') crawl.
@@ -417,24 +417,19 @@ def linear_start(problem: Problem) -> np.ndarray | None:
 
         minimize sum_R w_j d_j^2   s.t.   c(p0) + J_R d = 0     (linalg.saddle.constrained_step),
 
-    nearly balances gravity with no box (with bodies, their supports join R, clipped at 0 after:
-    a body only pushes); formulation.rest_change.spread_rest_change then stiffens
+    nearly balances gravity with no box; formulation.rest_change.spread_rest_change then stiffens
     each element just enough to bring its change into its box, keeping c. Only the root, where the
     boxes bind, starts stiffened, at |c|_inf ~1e-4 to 1e-3 with R within a few percent of the
     optimum; a start from the strand-stiffness solution (supplement section V) cost more than half of
     a strand's Gauss-Newton steps.
     """
     layout = problem.layout
-    rest = layout.block_mask((*REST_BLOCKS, CONTACT_BLOCK))
+    rest = layout.block_mask(REST_BLOCKS)
     step = constrained_step(problem.strand_jacobian(layout.p0), layout.weights, np.zeros(problem.n_parameters),
                             problem.residual(layout.p0), rest)
     if step is None or not np.all(np.isfinite(step[0])):
         return None
-    p = spread_rest_change(problem, step[0])
-    if CONTACT_BLOCK in problem.blocks:  # the bodies' supports (cheap, so they carry what they can)
-        ix = problem.blocks[CONTACT_BLOCK]
-        p[ix] = np.clip(layout.p0[ix] + step[0][ix], layout.lower[ix], layout.upper[ix])
-    return p
+    return spread_rest_change(problem, step[0])
 
 
 #: weight of R against 1/2 |c|^2 in the best-effort phase: a tie-break among least-residual points

@@ -1,10 +1,12 @@
 """Stable rest states for every solver: the stabilized problem and its loop (DESIGN section 4).
 
 A converged strand must be a STABLE rest state: ``problem.stability(p) >= problem.stability_margin``
-(mass-normalized smallest eigenvalue, s^-2). At q* the internal moments are fixed by statics, so the
-Hessian is a fixed stress term plus sum_j k_j G_j (G_j PSD): only stiffness restores stability, the
-smallest eigenvalue is concave in the multipliers k, and a rise of k_j that keeps k_j (kbar_j -
-kappa*) (formulation.rest_change.restiffen) keeps c = 0. Self-weight buckling of strands that point
+(mass-normalized smallest eigenvalue, s^-2). For a strand held by its root alone the internal moments
+at q* are fixed by statics, so the Hessian is a fixed stress term plus sum_j k_j G_j (G_j PSD): only
+stiffness restores stability, the smallest eigenvalue is concave in the multipliers k, and a rise of
+k_j that keeps k_j (kbar_j - kappa*) (formulation.rest_change.restiffen) keeps c = 0. (A held tip,
+pins or bodies add reactions the optimum may redistribute; the loop below then is a first-order
+method without that guarantee, and the result is still checked for stability.) Self-weight buckling of strands that point
 upward is what the boxes alone never prevent.
 
 The stabilized problem is the bare one with stiffness FLOORS: lower bounds on the multipliers that

@@ -26,19 +26,18 @@ _WARM: set = set()
 _MODEL_OPTIONS = ("curvature", "energies", "stiffness", "couple_twist", "optimize", "stabilize", "friction")
 
 
-def _key(solver: str, problem_options: dict) -> tuple:
-    return (solver, repr([(name, problem_options.get(name)) for name in _MODEL_OPTIONS]))
+def _key(solver: str, problem_options: dict | None) -> tuple:
+    return (solver, repr([(name, (problem_options or {}).get(name)) for name in _MODEL_OPTIONS]))
 
 
-def is_warm(solver: str, problem_options: dict) -> bool:
-    problem_options = {k: v for k, v in problem_options.items() if k in _MODEL_OPTIONS}
+def is_warm(solver: str, problem_options: dict | None) -> bool:
     return _key(solver, problem_options) in _WARM
 
 
 def announced_warm_up(solver: str, solver_options: dict | None = None, problem_options: dict | None = None,
                       progress: bool = True) -> float:
     """``warm_up``, saying on the screen (with ``progress``) what the wait is when there is one."""
-    if is_warm(solver, problem_options or {}):
+    if is_warm(solver, problem_options):
         return 0.0
     if progress:
         print(f"{solver}: loading the compiled model (compiling it on the first run only) ...", flush=True)
@@ -52,15 +51,15 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     """Solve a small strand with ``solver`` once per process and model options, untimed (module
     docstring); returns the seconds it took (0 if already warm). Never raises: a strand the real
     batch cannot solve reports its own error."""
-    problem_options = {k: v for k, v in (problem_options or {}).items() if k in _MODEL_OPTIONS}
     key = _key(solver, problem_options)
     if key in _WARM:
         return 0.0
     start = time.perf_counter()
     _WARM.add(key)
+    model = {k: v for k, v in (problem_options or {}).items() if k in _MODEL_OPTIONS}
     x = np.linspace(0.0, 0.02, 8)
     try:
-        problem = Problem(Strand(np.column_stack([x, 0.002 * np.sin(200 * x), 0.0 * x])), **problem_options)
+        problem = Problem(Strand(np.column_stack([x, 0.002 * np.sin(200 * x), 0.0 * x])), **model)
         options = {k: v for k, v in (solver_options or {}).items() if k != "p_start"}
         solve_stabilized(solver_entry(solver).function, problem, options)
     except Exception:  # noqa: BLE001 - warming is best effort; the batch reports real errors
