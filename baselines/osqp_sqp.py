@@ -33,6 +33,7 @@ import scipy.sparse as sp
 from sagfree.contract.optimality import KKT_TOL, TOL, gradient_scale, kkt_optimality
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.problem import Problem
+from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
 ARMIJO = 1e-4
 #: OSQP settings: no OSQP scaling (the step is scaled by S already; OSQP's Ruiz scaling on top of it
@@ -65,6 +66,7 @@ def _merit(problem: Problem, p, c, nu) -> float:
     return _objective_scale(problem) * problem.objective(p) + nu * float(np.abs(c).sum())
 
 
+@timed(LINEAR_ALGEBRA)
 def _subproblem(form: str, problem: Problem, J: sp.csc_matrix, c, gradient, d_lower, d_upper, nu,
                 settings: dict, warm_multipliers):
     """Solve one SQP subproblem with OSQP: (OSQP result, ADMM iterations, step d, equality

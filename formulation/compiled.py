@@ -50,14 +50,19 @@ def cache_dir() -> Path:
     return Path(os.environ.get("SAGFREE_CACHE", Path.home() / ".cache" / "sagfree"))
 
 
-def _source(functions: list[ca.Function]) -> str:
-    """Generated C of all ``functions`` plus one batch driver per function."""
+def generated_c(functions: list[ca.Function]) -> str:
+    """CasADi's C code of all ``functions`` in one file (each exported under its own name)."""
     with tempfile.TemporaryDirectory() as tmp:
-        generator = ca.CodeGenerator("stencils.c", {"with_header": False, "casadi_int": "long long int"})
+        generator = ca.CodeGenerator("generated.c", {"with_header": False, "casadi_int": "long long int"})
         for function in functions:
             generator.add(function)
         generator.generate(tmp + os.sep)
-        source = Path(tmp, "stencils.c").read_text()
+        return Path(tmp, "generated.c").read_text()
+
+
+def _source(functions: list[ca.Function]) -> str:
+    """Generated C of all ``functions`` plus one batch driver per function."""
+    source = generated_c(functions)
     sizes = lambda fn, n: ", ".join(str(fn(k)) for k in range(n))  # noqa: E731
     for f in functions:
         source += _DRIVER.format(
@@ -67,10 +72,11 @@ def _source(functions: list[ca.Function]) -> str:
     return source
 
 
-def _compile(source: str) -> Path:
-    """Build (or reuse) the shared library for ``source``; raises OSError/CalledProcessError."""
+def compile_library(source: str, stem: str = "stencils", optimization: str = "-O2") -> Path:
+    """Build (or reuse) the shared library for the C ``source``, cached as ``{stem}_{hash}.so``;
+    raises OSError/CalledProcessError."""
     digest = hashlib.sha256(source.encode()).hexdigest()[:24]
-    library = cache_dir() / f"stencils_{digest}.so"
+    library = cache_dir() / f"{stem}_{digest}.so"
     if library.exists():
         return library
     library.parent.mkdir(parents=True, exist_ok=True)
@@ -79,7 +85,7 @@ def _compile(source: str) -> Path:
         c_file.write_text(source)
         built = Path(tmp, "stencils.so")
         compiler = os.environ.get("CC", "cc")
-        run = subprocess.run([compiler, "-O2", "-fPIC", "-shared", "-o", str(built), str(c_file), "-lm"],
+        run = subprocess.run([compiler, optimization, "-fPIC", "-shared", "-o", str(built), str(c_file), "-lm"],
                              capture_output=True, text=True, timeout=600)
         if run.returncode != 0:
             raise OSError(f"{compiler} failed: {run.stderr.strip()[-2000:]}")
@@ -100,7 +106,7 @@ def batch_functions(functions: list[ca.Function]) -> list["BatchFunction"]:
     drivers = [None] * len(functions)
     if os.environ.get("SAGFREE_NO_COMPILE") != "1":
         try:
-            library = ctypes.CDLL(str(_compile(_source(functions))))
+            library = ctypes.CDLL(str(compile_library(_source(functions))))
             drivers = [getattr(library, f"{f.name()}_batch") for f in functions]
         except (OSError, subprocess.SubprocessError) as exc:
             if not _warned:

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 
 from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, principal_band_gather
 from sagfree.linalg.eigen import smallest_eigenpair
+from sagfree.linalg.timing import MODEL, timed
 
 from . import dofs
 from .curvature import check_variant
@@ -258,12 +259,14 @@ class Problem:
         vertex = (vertex_q, reference, self._vertex_geometry, self.layout.vertex_map.evaluate(p))
         return edge, vertex
 
+    @timed(MODEL)
     def energy(self, p, q=None, frames: Frames | None = None) -> float:
         """Elastic energy E(q, p), J; reference frames time-transported from those of q* (or
         ``frames``) inside the expression."""
         edge, vertex = self.stencil_inputs(p, q, frames)
         return float(self.edge_functions.energy(*edge)[0].sum() + self.vertex_functions.energy(*vertex)[0].sum())
 
+    @timed(MODEL)
     def elastic_gradient(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """grad_q E(q, p) (4n-1): N on positions, N m on angles. At q* (q and frames None) the vertex
         stencils' part is (dk/dy)^T dE/dk with the kinematics k at q* (stencils.FixedShapeFunctions)."""
@@ -278,6 +281,7 @@ class Problem:
         return (np.bincount(self.edge_dofs.ravel(), self.edge_functions.gradient(*edge)[0].ravel(), size)
                 + np.bincount(self.vertex_dofs.ravel(), vertex_gradient.ravel(), size))
 
+    @timed(MODEL)
     def forces(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """Generalized force f = -grad_q E(q, p) + f_ext (4n-1), N and N m; f_ext = gravity on the
         lumped masses plus the strand's loads; at q* (q and frames None) plus the bodies' supports
@@ -299,14 +303,17 @@ class Problem:
             out[self.contacts.vertices] = np.einsum("kj,kjd->kd", supports, self.contacts.directions) * scale[:, None]
         return out
 
+    @timed(MODEL)
     def residual(self, p) -> np.ndarray:
         """c(p) = D^-1 S f(q*, p), unit-free, free rows in strand order."""
         return self.forces(p)[self.free_index] / self._free_row_scale
 
+    @timed(MODEL)
     def jacobian(self, p) -> sp.csc_matrix:
         """dc/dp as a sparse (free DOFs x parameters) matrix, both axes in strand order (banded)."""
         return self.strand_jacobian(p).tocsc()
 
+    @timed(MODEL)
     def strand_jacobian(self, p, q=None, frames: Frames | None = None) -> StrandJacobian:
         """dc/dp with compiled products (jacobian module): what the solvers iterate with. At q* (q and
         frames None) the vertex stencils' blocks are (dk/dy)^T d(dE/dk)/d(physical) at q*
@@ -324,6 +331,7 @@ class Problem:
         return StrandJacobian(self._jacobian_pattern, self._jacobian_pattern.values(
             self.edge_functions.parameter_jacobian(*edge)[0], vertex_jacobian, contact_jacobian))
 
+    @timed(MODEL)
     def constraint_hessian(self, p, lam) -> sp.csr_matrix:
         """sum_r lam_r d2c_r/dp2 at q* (n_parameters square, sparse, symmetric): the curvature of the
         constraints that the Lagrangian's Hessian adds to the regularizer's (asc's Newton-SQP phase).
@@ -361,6 +369,7 @@ class Problem:
         return [(self.edge_dofs, self.edge_functions.hessian(*edge)[0]),
                 (self.vertex_dofs, self.vertex_functions.hessian(*vertex)[0])]
 
+    @timed(MODEL)
     def hessian(self, p, q=None, frames: Frames | None = None) -> sp.csr_matrix:
         """d2E/dq2 (4n-1 square, sparse, half bandwidth 10)."""
         blocks = self._hessian_blocks(p, q, frames)
@@ -375,6 +384,7 @@ class Problem:
         in the same band storage (attachments may prescribe DOFs anywhere along q)."""
         return principal_band(band, self._free_gather, self.free_index.size)
 
+    @timed(MODEL)
     def hessian_band(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """d2E/dq2 in LAPACK lower band storage: band[k, j] = H[j + k, j], k = 0..10.
 

@@ -126,10 +126,21 @@ def comparison_rows(study: Study) -> list[list]:
                 gaps = ([abs(r.objective / a.objective - 1) for r, a in zip(results, reference.results[:count])
                          if r.status == a.status == "converged" and a.objective > 0] if reference else [])
                 rows.append([scene, mode, case.solver, count, status_summary(results),
-                             1e3 * mean_time, _spread(1e3 * times),
+                             1e3 * mean_time, _spread(1e3 * times), time_split_cell(results),
                              shifted_geometric_mean(iterations, SHIFTS["iterations"]), _spread(iterations),
                              mean_time / asc_time, max(gaps) if gaps and case.solver != "asc" else "-"])
     return rows
+
+
+def time_split_cell(results) -> str:
+    """'model / linear algebra / other' as percentages of the strands' summed time (Result.time_split;
+    '-' where a solver did not record it)."""
+    splits = [r.time_split for r in results if r.time_split]
+    total = sum(sum(s.values()) for s in splits)
+    if not splits or total <= 0:
+        return "-"
+    shares = [100 * sum(s.get(k, 0.0) for s in splits) / total for k in ("model", "linear_algebra", "other")]
+    return " / ".join(f"{share:.0f}" for share in shares)
 
 
 def _spread(values) -> str:

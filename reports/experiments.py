@@ -147,9 +147,42 @@ def stiffness_modes(steps: int = 300, dt: float = 1e-3, youngs_modulus: float = 
     return runs
 
 
-def document_blocks(steps: int = 300, dt: float = 1e-3) -> list:
-    """The three experiments run and tabulated, as report blocks (document module)."""
-    from .document import Heading, Paragraph, Table
+def draw(frames: list[ModelRun], slerps: list[ModelRun], modes: list[StiffnessModeRun], path) -> None:
+    """The experiments' figure: displacement over time of IV.A and IV.B, bend multiplier along the
+    strand of V (S Figs. 2-4 as curves)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13.5, 3.6))
+    for ax, runs, title in ((axes[0], frames, "IV.A: 2d-average vs 4d, E 1e10 Pa"),
+                            (axes[1], slerps, "IV.B: 2d-slerp vs 4d, flipped frames")):
+        for run in runs:
+            length = SCENES[run.scene]().length
+            label = f"{run.curvature}, {run.scene}" + (f", E {run.youngs_modulus:.0e} Pa" if runs is slerps else "")
+            ax.plot(run.simulation.times, np.maximum(run.simulation.displacement / length, 1e-16), label=label)
+        ax.set(yscale="log", xlabel="time (s)", ylabel="largest displacement / L", title=title)
+        ax.legend(fontsize=6)
+    for run in modes:
+        bend = np.asarray(run.result.physical["bend_modulus"])
+        multiplier = bend * run.bend_max / bend.max()  # bend_max is max(bend / E)
+        axes[2].plot(np.linspace(0.0, 1.0, bend.size + 2)[1:-1], multiplier, marker=".", markersize=3,
+                     label=f"{run.mode}: max {run.bend_max:.3g}, root response {run.root_response:.2g} L")
+    axes[2].set(yscale="log", xlabel="interior vertex along the strand (root at 0)", ylabel="bend modulus / E",
+                title="V: naive, per strand, per element, E 1e9 Pa")
+    axes[2].legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def document_blocks(steps: int = 300, dt: float = 1e-3, directory=None) -> list:
+    """The three experiments run and tabulated, as report blocks (document module); with a report
+    ``directory``, also their figure (figures/experiments.png)."""
+    from pathlib import Path
+
+    from .document import Figure, Heading, Paragraph, Table
 
     header = ["scene", "curvature", "E (Pa)", "bend energy of an arc (J)", "sag / L", "final / L",
               "static sag / L", "Newton per step", "converged"]
@@ -159,6 +192,19 @@ def document_blocks(steps: int = 300, dt: float = 1e-3) -> list:
                  r.static_sag if r.static_converged else "no convergence", r.newton, r.converged] for r in runs]
 
     modes = stiffness_modes(steps, dt)
+    frames, slerps = frame_averaging(steps, dt), slerp(steps, dt)
+    figure = []
+    if directory is not None:
+        (Path(directory) / "figures").mkdir(parents=True, exist_ok=True)
+        draw(frames, slerps, modes, Path(directory) / "figures" / "experiments.png")
+        figure = [Figure("figures/experiments.png", (
+            "The supplement's experiments on `horizontal` (30 vertices, 10 cm). Left and middle: the largest "
+            "vertex displacement over the strand length against time (s), from rest at the groomed shape with "
+            "the naive parameters (log scale; 2d-average with flipped frames has no bending energy and falls "
+            "like a chain, S Fig. 2). Right: the bend modulus over Young's modulus at each interior vertex "
+            "for the naive parameters, one stiffness per strand and one per element (S Fig. 4); the legend "
+            "gives the largest multiplier and the tip's deflection over L while the root rises by 1 cm."),
+            1.0)]
     return [
         Heading("The supplement's experiments"),
         Paragraph(f"`horizontal` strand (30 vertices, 10 cm, clamped), naive parameters unless stated, {steps} "
@@ -166,9 +212,9 @@ def document_blocks(steps: int = 300, dt: float = 1e-3) -> list:
                   "shape. Bend energy of an arc: the bending energy alone when the strand is bent into an arc "
                   "of radius L (zero: no bending resistance)."),
         Heading("IV.A: 4d against 2d-average, with and without flipped frames (Fig. 2)", 3),
-        Table(header, model_rows(frame_averaging(steps, dt))),
+        Table(header, model_rows(frames)),
         Heading("IV.B: 4d against 2d-slerp on flipped frames (Fig. 3)", 3),
-        Table(header, model_rows(slerp(steps, dt))),
+        Table(header, model_rows(slerps)),
         Heading("V: naive, one stiffness per strand, per-element stiffness (Fig. 4)", 3),
         Paragraph(f"Tail: the last {TAIL:.0%} of the vertices. Root response: the largest tip deflection from "
                   f"the rigidly moved shape while the root rises by {ROOT_RISE * 100:g} cm in "
@@ -177,4 +223,5 @@ def document_blocks(steps: int = 300, dt: float = 1e-3) -> list:
                "static sag / L", "root response / L"],
               [[r.mode, r.result.status, r.bend_max, f"{r.stiffened:.0%}", r.tail_max, r.sag, r.static_sag,
                 r.root_response] for r in modes]),
+        *figure,
     ]

@@ -1,5 +1,6 @@
-"""Figures of a study (matplotlib, written as PNG): convergence of every solver, stiffening along the
-strand, strands coloured by stiffening (like the supplement's Fig. 4), sag naive vs optimized, and
+"""Figures of a study (matplotlib, written as PNG): performance profiles, convergence bands of every
+solver, before/after side views (naive droop against the optimized strands, coloured by stiffening,
+like the supplement's Fig. 4), stiffening along the strand, sag per strand, stability per strand and
 time against strand size.
 
 Stiffening is the bend modulus over the strand's Young's modulus at each interior vertex (1 =
@@ -50,18 +51,102 @@ def _scene_axes(count: int, width: float = 4.2, height: float = 3.0):
     return fig, axes.ravel()
 
 
+#: |c|_inf at or below this (including exactly 0) is drawn at it
+HISTORY_FLOOR = 1e-16
+
+
 def convergence(study: Study, path: Path) -> Path:
-    """|c|_inf after each primal step (each solver's own history), first strand of every scene."""
+    """|c|_inf after each primal step over every strand of each scene: the median and the 10-90%
+    band per solver and mode (a strand that stopped keeps its last value)."""
     scenes = list(study.scenes)
     fig, axes = _scene_axes(len(scenes))
     for ax, scene in zip(axes, scenes):
-        for case in (c for c in study.cases if c.scene == scene and c.results):
-            history = [h for h in case.results[0].history if h > 0]
-            if history:
-                ax.semilogy(np.arange(len(history)), history, marker=".", markersize=3, label=case.label)
+        for case in (c for c in study.cases if c.scene == scene and c.results and c.solver != "naive"):
+            histories = [np.maximum(np.asarray(r.history, dtype=float), HISTORY_FLOOR) for r in case.results
+                         if r.history and np.all(np.isfinite(r.history))]
+            if not histories:
+                continue
+            steps = max(len(h) for h in histories)
+            padded = np.array([np.r_[h, np.full(steps - len(h), h[-1])] for h in histories])
+            low, middle, high = np.percentile(padded, [10, 50, 90], axis=0)
+            line, = ax.semilogy(np.arange(steps), middle, label=f"{case.label}, {len(histories)} strands")
+            if len(histories) > 1:
+                ax.fill_between(np.arange(steps), low, high, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.axhline(1e-8, color="gray", linestyle=":", linewidth=0.8)
-        ax.set(title=f"{scene}: strand 0", xlabel="primal step (own kind per solver)", ylabel="|c|_inf")
+        ax.set(title=scene, xlabel="primal step (own kind per solver)", ylabel="|c|_inf (unit-free)")
         ax.legend(fontsize=6)
+    return _save(fig, path)
+
+
+#: strands drawn per scene in the before/after figure
+DROOP_STRANDS = 6
+
+
+def droop(study: Study, path: Path, solver: str = "asc") -> Path:
+    """Before and after, side view (x-z) of the first strands of each scene that has naive and
+    ``solver`` cases: the static equilibrium the naive parameters relax into (left) and the one of
+    ``solver``'s parameters (right, coloured by the bend multiplier), over the groomed shape (grey)."""
+    from sagfree.formulation.problem import Problem
+    from sagfree.formulation.simulation import equilibrium
+
+    scenes = [s for s in study.scenes if study.case(s, "naive", study.settings["modes"][0])
+              and study.case(s, solver, study.settings["modes"][0])][:3]
+    fig, axes = plt.subplots(len(scenes), 2, figsize=(9.0, 3.6 * len(scenes)), squeeze=False, layout="constrained")
+    drawn, options = [], study.settings.get("scene_options", {})
+    for row, scene in enumerate(scenes):
+        mode = study.settings["modes"][0]
+        for column, name in enumerate(("naive", solver)):
+            ax, case = axes[row, column], study.case(scene, name, mode)
+            segments, colours = [], []
+            for k, strand in enumerate(study.scenes[scene][: min(DROOP_STRANDS, len(case.results))]):
+                result = case.results[k]
+                if not np.all(np.isfinite(result.p)):
+                    continue
+                ax.plot(strand.points[:, 0], strand.points[:, 2], color="0.8", linewidth=3.0)
+                problem = Problem(strand, stiffness=mode, **options.get(scene, {}))
+                rest = equilibrium(problem, result.p).positions[:, [0, 2]]
+                segments.extend(np.stack([rest[:-1], rest[1:]], axis=1))
+                s = bend_multiplier(strand, result)
+                colours.extend(np.r_[s[0], np.maximum(s[:-1], s[1:]), s[-1]])
+            lines = LineCollection(segments, cmap="viridis", linewidths=1.2)
+            lines.set_array(np.maximum(np.array(colours), 1.0))
+            ax.add_collection(lines)
+            drawn.append(lines)
+            ax.autoscale()
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set(title=f"{scene}: {name}, static equilibrium", xlabel="x (m)", ylabel="z (m)")
+    values = np.concatenate([np.asarray(lines.get_array()) for lines in drawn]) if drawn else np.ones(1)
+    norm = matplotlib.colors.LogNorm(1.0, max(2.0, float(np.nanmax(values))))
+    for lines in drawn:
+        lines.set_norm(norm)
+    if drawn:
+        fig.colorbar(drawn[-1], ax=list(axes.ravel()), label="bend modulus / E", shrink=0.8)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def stability(study: Study, path: Path) -> Path:
+    """The smallest mass-normalized eigenvalue (s^-2) of every strand per case (symmetric log scale),
+    marked by the push test: held (green), fell (red cross), not pushed (grey)."""
+    cases = [c for c in study.cases if c.results and c.solver != "naive"]
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.6 * len(cases) + 2), 3.6))
+    rng = np.random.default_rng(0)
+    for k, case in enumerate(cases):
+        values = np.array([r.min_eigenvalue for r in case.results])
+        x = k + rng.uniform(-0.25, 0.25, values.size)
+        pushed = [j < len(case.checks) and case.checks[j].push == case.checks[j].push for j in range(values.size)]
+        held = [p and case.checks[j].holds for j, p in enumerate(pushed)]
+        for mask, style in ((np.array(held), dict(color="tab:green", marker="o", s=8)),
+                            (np.array(pushed) & ~np.array(held), dict(color="tab:red", marker="x", s=14)),
+                            (~np.array(pushed), dict(color="0.6", marker="o", s=6))):
+            if mask.any():
+                ax.scatter(x[mask], values[mask], **style)
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.axhline(0.0, color="gray", linestyle=":", linewidth=0.8)
+    ax.set_xticks(np.arange(len(cases)), [f"{c.scene}\n{c.label}" for c in cases], rotation=60, ha="right",
+                  fontsize=6)
+    ax.set(ylabel="smallest eigenvalue (s^-2)", title="stability per strand (green: holds after a push)")
     return _save(fig, path)
 
 
@@ -102,44 +187,6 @@ def stiffening_profile(study: Study, path: Path) -> Path:
         ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.legend(fontsize=6)
     return _save(fig, path)
-
-
-def strands_by_stiffening(study: Study, path: Path, solver: str = "asc") -> Path:
-    """Every scene's strands (side view, x-z), each segment coloured by its bend multiplier."""
-    scenes = list(study.scenes)
-    fig, axes = _scene_axes(len(scenes), 4.2, 4.2)
-    drawn = []
-    for ax, scene in zip(axes, scenes):
-        case = study.case(scene, solver, "element") or next(
-            (c for c in study.cases if c.scene == scene and c.solver == solver), None)
-        strands = study.scenes[scene][:MAX_DRAWN]
-        segments, colours = [], []
-        for k, strand in enumerate(strands):
-            x = strand.points[:, [0, 2]]
-            if case is not None and k < len(case.results) and case.results[k].status == "converged":
-                s = bend_multiplier(strand, case.results[k])
-                per_edge = np.r_[s[0], np.maximum(s[:-1], s[1:]), s[-1]]
-            else:
-                per_edge = np.full(len(x) - 1, np.nan)
-            segments.extend(np.stack([x[:-1], x[1:]], axis=1))
-            colours.extend(per_edge)
-        lines = LineCollection(segments, cmap="viridis", linewidths=2.0 if len(strands) < 10 else 0.6)
-        lines.set_array(np.maximum(np.array(colours), 1.0))
-        ax.add_collection(lines)
-        drawn.append(lines)
-        ax.autoscale()
-        ax.set_aspect("equal")
-        ax.set(title=f"{scene}: {case.label if case else 'not solved'}", xlabel="x (m)", ylabel="z (m)")
-    # one logarithmic colour scale spanning the data of every panel (at least 1 to 2)
-    values = np.concatenate([np.asarray(lines.get_array()) for lines in drawn])
-    top = max(2.0, float(np.nanmax(values))) if np.isfinite(values).any() else 2.0
-    norm = matplotlib.colors.LogNorm(1.0, top)
-    for lines in drawn:
-        lines.set_norm(norm)
-    fig.colorbar(drawn[-1], ax=list(axes[: len(scenes)]), label="bend modulus / E", shrink=0.8)
-    fig.savefig(path, dpi=DPI, bbox_inches="tight")
-    plt.close(fig)
-    return path
 
 
 def sag_comparison(study: Study, path: Path) -> Path:
@@ -216,20 +263,27 @@ FIGURES = {
                  "compilation excluded) and major iterations (right: asc and penalty-gn Gauss-Newton steps, "
                  "ipopt iterations, osqp SQP steps; ratios of count + 1), over the strands every solver "
                  "ran. Higher is better; the value at tau = 1 is the share where the solver is the best."),
-    "convergence": (convergence, "Convergence: |c|_inf after each primal step of every solver (asc: "
-                    "Gauss-Newton steps; ipopt: iterations; osqp: SQP steps; penalty-gn: Gauss-Newton), on "
-                    "the first strand of each scene. Dotted: the 1e-8 tolerance."),
+    "convergence": (convergence, "Convergence: |c|_inf (unit-free) after each primal step (asc: "
+                    "Gauss-Newton steps; ipopt: iterations; osqp: SQP steps; penalty-gn: Gauss-Newton), the "
+                    "median (line) and 10-90% band over the strands of each scene per solver; a strand that "
+                    "stopped keeps its last value, zero is drawn at 1e-16. Dotted: the 1e-8 tolerance."),
+    "droop": (droop, "Before and after: the first strands of each scene seen from the side (x-z, m), "
+              "their static equilibrium with the naive parameters (left) and with our solver's (right), "
+              "over the groomed shape (thick grey), coloured by the bend modulus over Young's modulus "
+              "(1: as specified; log scale spanning the data). The naive strands droop; the optimized "
+              "ones stay on their groom."),
     "stiffening": (stiffening_profile, "Stiffening along the strand: bend modulus over the specified "
                    "Young's modulus (1: as specified) against arc length over the strand length, over every "
                    "strand each solver converged on: the median (line) and the 10-90% band, per solver and "
                    "stiffness mode."),
-    "strands": (strands_by_stiffening, "Strands seen from the side (x-z), coloured by the bend "
-                "multiplier of our solver's parameters (per element where the study has that mode), as "
-                "in the supplement's Fig. 4."),
     "sag": (sag_comparison, "Sag over strand length of every simulated strand (the larger of simulation and "
             "static solve), per case; red: strands the solver did not converge on; values below 1e-14 "
             "(or 0) drawn at 1e-14."),
-    "time": (time_against_size, "Mean time per strand against strand size."),
+    "stability": (stability, "Stability: the smallest mass-normalized eigenvalue of the free-DOF Hessian "
+                  "at the groomed shape (omega^2 of the slowest mode, s^-2; symmetric log scale, linear "
+                  "within +-1) of every strand per case; green: pushed along that mode and held, red cross: "
+                  "pushed and fell, grey: not pushed."),
+    "time": (time_against_size, "Mean time per strand (ms) against strand size (vertices), log-log."),
 }
 
 
@@ -240,6 +294,9 @@ def draw_all(study: Study, directory: Path, sizes: Study | None = None) -> dict[
     drawn = {}
     for name, (function, _) in FIGURES.items():
         if name == "sag" and not any(c.checks for c in study.cases):
+            continue
+        if name == "droop" and not any(study.case(s, "naive", study.settings["modes"][0]) and
+                                       study.case(s, "asc", study.settings["modes"][0]) for s in study.scenes):
             continue
         if name == "profiles" and not any(len(comparable_cases(study, c.scene, c.mode)) > 1 for c in study.cases):
             continue

@@ -11,6 +11,15 @@
     dt = 1e-3                                 # their time step, s (default 1e-3)
     limits = { ipopt = 6 }                    # a solver solves only the first N strands of a scene
     check_limits = { ipopt = 6 }              # ... and simulates only the first N
+    push_limits = { asc = 20 }                # ... and pushes only the first N of those (5 s each)
+    intro = "What this study shows."          # a paragraph at the top of the report
+    experiments = true                        # the supplement's experiments IV.A, IV.B, V (default false)
+    derivatives = true                        # the derivative verification (default false)
+
+    [sizes]                                   # time against strand size (default: none)
+    strands = 4                               # groom(strands, n, seed=0) for each n of vertices
+    vertices = [25, 50, 100, 200]
+    solvers = ["asc", "penalty-gn"]
 
     [[scenes]]
     name = "curly"                            # the label in the report (default: source)
@@ -20,6 +29,7 @@
     bodies = ["sphere:0,0,0,0.1"]             # Problem options of this scene's strands (bodies,
     contact_distance = 1e-4                   # contact_distance, friction, gravity; default: none,
                                               # and a built-in scene's own bodies)
+    solvers = ["asc", "naive"]                # the solvers run on this scene (default: all the study's)
 
     [options.osqp]                            # a solver's options (checked against the solver's)
     max_seconds = 20.0
@@ -46,9 +56,11 @@ from sagfree.scenes import load
 from sagfree.scenes.catalog import BUILTIN, SCENE_BODIES
 
 TOP_KEYS = {"title": str, "out": str, "solvers": list, "modes": list, "curvatures": list, "simulate": bool,
-            "steps": int, "dt": float, "limits": dict, "check_limits": dict, "scenes": list, "options": dict}
+            "steps": int, "dt": float, "limits": dict, "check_limits": dict, "push_limits": dict, "scenes": list,
+            "options": dict, "intro": str, "experiments": bool, "derivatives": bool, "sizes": dict}
 SCENE_KEYS = {"name": str, "source": str, "units": str, "strands": int, "bodies": list,
-              "contact_distance": float, "friction": float, "gravity": list}
+              "contact_distance": float, "friction": float, "gravity": list, "solvers": list}
+SIZES_KEYS = {"strands": int, "vertices": list, "solvers": list}
 SCENE_PROBLEM_OPTIONS = ("bodies", "contact_distance", "friction", "gravity")
 
 
@@ -71,7 +83,13 @@ class StudySpec:
     dt: float = 1e-3
     limits: dict = field(default_factory=dict)
     check_limits: dict = field(default_factory=dict)
+    push_limits: dict = field(default_factory=dict)
     solver_options: dict = field(default_factory=dict)
+    scene_solvers: dict = field(default_factory=dict)      # label -> solvers run on it
+    intro: str = ""
+    experiments: bool = False
+    derivatives: bool = False
+    sizes: dict | None = None                              # {strands, vertices, solvers}
 
 
 def load_study_file(path) -> StudySpec:
@@ -104,10 +122,11 @@ def load_study_file(path) -> StudySpec:
     for variant in curvatures:
         if variant not in VARIANTS:
             fail("curvatures", f"unknown curvature variant {variant!r}; choose from {', '.join(VARIANTS)}")
-    for key in ("limits", "check_limits"):
+    for key in ("limits", "check_limits", "push_limits"):
         for name, count in data.get(key, {}).items():
-            if name not in solvers or not isinstance(count, int) or count < 1:
-                fail(key, f"{name} = {count!r}: expected a solver of the study and a positive strand count")
+            least = 1 if key == "limits" else 0
+            if name not in solvers or not isinstance(count, int) or isinstance(count, bool) or count < least:
+                fail(key, f"{name} = {count!r}: expected a solver of the study and a strand count >= {least}")
     solver_options = {}
     for name, options in data.get("options", {}).items():
         if name not in solvers or not isinstance(options, dict):
@@ -118,10 +137,21 @@ def load_study_file(path) -> StudySpec:
             fail(next(iter(options), "options"), str(exc))
     if not data.get("scenes"):
         fail("scenes", "a study needs at least one [[scenes]] table with a source")
+    sizes = data.get("sizes")
+    if sizes is not None:
+        _check_keys(sizes, SIZES_KEYS, fail, "[sizes]")
+        sizes = {"strands": 4, "vertices": [25, 50, 100, 200], "solvers": ["asc"], **sizes}
+        for name in sizes["solvers"]:
+            if name not in solvers:
+                fail("sizes", f"[sizes] solver {name!r} is not a solver of the study ({', '.join(solvers)})")
+        if not all(isinstance(n, int) and n >= 3 for n in sizes["vertices"]) or sizes["strands"] < 1:
+            fail("vertices", "[sizes] needs strands >= 1 and vertices: a list of integers >= 3")
     spec = StudySpec(data.get("title", path.stem), data.get("out", path.stem), solvers=solvers, modes=modes,
                      simulate=data.get("simulate", True), steps=data.get("steps", 200), dt=data.get("dt", 1e-3),
                      limits=data.get("limits", {}), check_limits=data.get("check_limits", {}),
-                     solver_options=solver_options)
+                     push_limits=data.get("push_limits", {}), solver_options=solver_options,
+                     intro=data.get("intro", ""), experiments=data.get("experiments", False),
+                     derivatives=data.get("derivatives", False), sizes=sizes)
     for scene in data["scenes"]:
         if not isinstance(scene, dict):
             fail("scenes", "each [[scenes]] entry must be a table")
@@ -139,12 +169,17 @@ def load_study_file(path) -> StudySpec:
         if "bodies" not in options and source in SCENE_BODIES:
             options["bodies"] = list(SCENE_BODIES[source])
         label = scene.get("name", source)
+        scene_solvers = scene.get("solvers", solvers)
+        for name in scene_solvers:
+            if name not in solvers:
+                fail("solvers", f"scene {label!r}: solver {name!r} is not a solver of the study ({', '.join(solvers)})")
         for variant in curvatures:
             name = label if len(curvatures) == 1 else f"{label} ({variant})"
             if name in spec.scenes:
                 fail("name", f"two scenes are called {name!r}")
             spec.scenes[name] = strands
             spec.scene_options[name] = {**options, "curvature": variant}
+            spec.scene_solvers[name] = list(scene_solvers)
     return spec
 
 
@@ -164,16 +199,46 @@ def _line(text: str, key: str) -> int:
     return text.count("\n", 0, match.start()) + 1 if match else 1
 
 
+@dataclass
+class StudyRun:
+    """What running a study file produced: the Study, its report files, the derivative checks
+    (passed, run; (0, 0) without ``derivatives``) and the wall time (s)."""
+
+    study: object
+    files: object
+    checks_passed: int = 0
+    checks_total: int = 0
+    seconds: float = 0.0
+
+
 def run_study_file(path, out: str | None = None, jobs: int | None = None, progress: bool = True,
-                   pdf: bool = True):
-    """Run the study of ``path`` and write its report (to ``out``, default the file's ``out``);
-    returns (Study, ReportFiles)."""
+                   pdf: bool = True, spec: StudySpec | None = None) -> StudyRun:
+    """Run the study of ``path`` (or the already loaded ``spec``) with its sections and write its
+    report to ``out`` (default: the file's ``out``)."""
+    import time
+
+    from . import sections
+    from .document import Paragraph
     from .report import write_report
     from .study import run_study
 
-    spec = load_study_file(path)
+    start = time.perf_counter()
+    spec = spec or load_study_file(path)
+    directory = Path(out or spec.out)
     study = run_study(spec.scenes, spec.solvers, spec.modes, simulate=spec.simulate, steps=spec.steps,
                       dt=spec.dt, jobs=jobs, progress=progress, limits=spec.limits,
                       check_limits=spec.check_limits, solver_options=spec.solver_options,
-                      scene_options=spec.scene_options)
-    return study, write_report(study, out or spec.out, spec.title, pdf=pdf)
+                      scene_options=spec.scene_options, push_limits=spec.push_limits,
+                      scene_solvers=spec.scene_solvers)
+    extra, appendix, sweep, passed, total = [], [], None, 0, 0
+    if spec.sizes:
+        sweep, blocks = sections.size_sweep(spec.sizes["strands"], spec.sizes["vertices"], spec.sizes["solvers"])
+        extra += blocks
+    if spec.experiments:
+        extra += sections.experiment_blocks(directory)
+    if spec.derivatives:
+        body, appendix, passed, total = sections.derivative_blocks(directory)
+        extra += body
+    intro = [Paragraph(spec.intro)] if spec.intro else []
+    files = write_report(study, directory, spec.title, intro, extra, pdf=pdf, sizes=sweep, appendix=appendix)
+    return StudyRun(study, files, passed, total, time.perf_counter() - start)

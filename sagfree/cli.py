@@ -1,14 +1,15 @@
 """The ``sagfree`` command line (DESIGN section 10).
 
-Exit codes: 0 success; 1 a check failed (``demo``, ``check``: a derivative mismatch; ``optimize``:
-a strand did not converge; ``simulate``: a strand moved more than ``--max-sag``, fell after a push or
-was not checked;
-``report``: ``asc`` did not converge on a strand); 2 bad usage or unreadable input.
+Exit codes: 0 success; 1 a check failed (``check``: a derivative mismatch; ``optimize``: a strand
+did not converge; ``simulate``: a strand moved more than ``--max-sag``, fell after a push or was not
+checked; ``demo``, ``study``, ``report``: ``asc`` failed or hit a limit on a strand, or a derivative
+check failed; an ``infeasible`` strand is an answer); 2 bad usage or unreadable input.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 from sagfree.frontend.table import SOLVERS
@@ -26,18 +27,9 @@ def _demo(args) -> int:
     from sagfree.reports.demo import run_demo
 
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
-    summary = run_demo(args.out, progress=not args.quiet, jobs=args.jobs, solvers=solvers,
-                       baseline_strands=args.baseline_strands)
-    print(f"groom: {summary.strands} strands, {summary.vertices} vertices")
-    for solver, statuses in summary.statuses.items():
-        counts = ", ".join(f"{k} {v}" for k, v in statuses.items() if v)
-        still, simulated = summary.still[solver]
-        holds, _ = summary.holds[solver]
-        print(f"{solver:10} {summary.wall_time[solver]:7.2f} s   {counts:34} still {still}/{simulated}, "
-              f"hold after a push {holds}/{simulated}")
-    print(f"derivative checks: {summary.checks_passed}/{summary.checks_total} passed")
-    print(f"demo took {summary.seconds:.0f} s; wrote {summary.report} and {summary.pdf}")
-    return 0 if summary.checks_passed == summary.checks_total else 1
+    run = run_demo(args.out, progress=not args.quiet, jobs=args.jobs, solvers=solvers,
+                   baseline_strands=args.baseline_strands)
+    return _study_summary(run)
 
 
 def _check(args) -> int:
@@ -216,8 +208,10 @@ def _batch_arguments(command) -> None:
 def _report(args) -> int:
     from sagfree.reports.report import write_report
     from sagfree.reports.study import run_study
+    from sagfree.reports.study_file import StudyRun
     from sagfree.scenes import load
 
+    start = time.perf_counter()
     scenes = {name: load(name, args.units)[: args.max_strands] for name in
               (n.strip() for n in args.scenes.split(",")) if name}
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
@@ -230,27 +224,40 @@ def _report(args) -> int:
                       progress=not args.quiet, scheduler=args.scheduler, solver_options=solver_options,
                       scene_options=scene_options)
     files = write_report(study, args.out, "sagfree report", pdf=not args.no_pdf)
-    return _study_summary(study, files)
+    return _study_summary(StudyRun(study, files, seconds=time.perf_counter() - start))
 
 
 def _study(args) -> int:
     from sagfree.reports.study_file import run_study_file
 
-    study, files = run_study_file(args.file, args.out, jobs=args.jobs, progress=not args.quiet, pdf=not args.no_pdf)
-    return _study_summary(study, files)
+    run = run_study_file(args.file, args.out, jobs=args.jobs, progress=not args.quiet, pdf=not args.no_pdf)
+    return _study_summary(run)
 
 
-def _study_summary(study, files) -> int:
-    """A line per case and the files written; exit code 1 if asc did not converge on a strand."""
+def _study_summary(run) -> int:
+    """A line per case (wall time of its batch, statuses, forward checks), the derivative checks and
+    the files written; exit code 1 if asc failed or hit its limits on a strand (``infeasible`` is an
+    answer) or a derivative check failed."""
     from sagfree.contract.result import status_summary
+    from sagfree.reports.report import STILL
 
+    study, files = run.study, run.files
     width = max(12, *(len(case.scene) for case in study.cases))
     for case in study.cases:
+        checks = ""
+        if case.checks:
+            still = sum(not check.sags(STILL) for check in case.checks)
+            checks = f"still {still}/{len(case.checks)}"
+            if case.pushed:
+                checks += f", hold after a push {sum(c.holds for c in case.pushed)}/{len(case.pushed)}"
         print(f"{case.scene:{width}} {case.mode:8} {case.solver:10} {case.wall:7.2f} s   "
-              f"{status_summary(case.results)}")
-    print(f"wrote {files.markdown}" + (f" and {files.pdf}" if files.pdf else ""))
-    failed = any(r.status != "converged" for c in study.cases if c.solver == "asc" for r in c.results)
-    return 1 if failed else 0
+              f"{status_summary(case.results):34} {checks}")
+    if run.checks_total:
+        print(f"derivative checks: {run.checks_passed}/{run.checks_total} passed")
+    print(f"took {run.seconds:.0f} s; wrote {files.markdown}" + (f" and {files.pdf}" if files.pdf else ""))
+    failed = any(r.status in ("failed", "max_iterations") for c in study.cases if c.solver == "asc"
+                 for r in c.results)
+    return 1 if failed or run.checks_passed < run.checks_total else 0
 
 
 def parser() -> argparse.ArgumentParser:
@@ -261,16 +268,19 @@ def parser() -> argparse.ArgumentParser:
     sub = top.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="the main job on the embedded default groom, with a report",
-                          description="Solve every strand of the embedded default groom with our solver "
-                          "and the naive baseline, the other baselines on the first strands, verify the "
-                          "derivatives, write report.md.")
+                          description="Run the shipped study studies/demo.toml (the same as `sagfree "
+                          "study` on it): every strand of the embedded default groom with our solver and the "
+                          "naive baseline, the other baselines on the first strands, held strands and long "
+                          "hair on a head, forward checks, the supplement's experiments, the derivative "
+                          "verification; writes report.md and report.pdf.")
     demo.add_argument("--out", default="sagfree-demo", help="output directory (default: sagfree-demo)")
     demo.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     demo.add_argument("--quiet", action="store_true", help="no progress bars")
     demo.add_argument("--solvers", default=",".join(SOLVERS), type=_solver_list,
                       help=f"comma-separated solvers (default: all: {','.join(SOLVERS)}); asc always runs")
-    demo.add_argument("--baseline-strands", type=int, default=6,
-                      help="strands the baselines other than naive solve (default 6)")
+    demo.add_argument("--baseline-strands", type=int, default=None,
+                      help="strands the baselines other than naive solve and check (default: the "
+                           "study file's limits)")
     demo.set_defaults(run=_demo)
 
     check = sub.add_parser("check", help="Jacobian verification table; non-zero exit on any mismatch",

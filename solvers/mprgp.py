@@ -56,6 +56,7 @@ import numpy as np
 
 from sagfree.linalg.band import BorderedBand, gershgorin_bound, matvec
 from sagfree.linalg.cholesky import factor_active, solve_factored
+from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
 from .interior_point import interior_point
 
@@ -84,6 +85,7 @@ class QPResult:
     interior: int = 0           # interior-point iterations of the fallback
 
 
+@timed(LINEAR_ALGEBRA)
 def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                  x0: np.ndarray | None = None, rtol: float = 1e-10, atol: float = 0.0,
                  max_iterations: int = 10_000, preconditioner: str = "cholesky",

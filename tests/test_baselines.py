@@ -170,3 +170,24 @@ def test_every_solver_runs_through_optimize(solver):
         problem = sagfree.Problem(strand)
         assert result.p.shape == (problem.n_parameters,)
         assert result.residual_inf == pytest.approx(np.abs(problem.residual(result.p)).max())
+
+
+def test_ipopt_compiled_model_takes_the_same_iterates_and_its_time_is_split():
+    problem = sagfree.Problem(sagfree.scenes.horizontal(8), stabilize=False)
+    interpreted = sagfree.solve(problem, "ipopt", model="casadi")
+    compiled = sagfree.solve(problem, "ipopt", model="compiled")
+    assert compiled.status == interpreted.status == "converged"
+    assert compiled.iterations == interpreted.iterations
+    np.testing.assert_allclose(compiled.p, interpreted.p, rtol=1e-9, atol=1e-12)
+    for result in (compiled, interpreted):
+        split = result.time_split
+        assert split["model"] > 0 and split["other"] >= 0
+        assert sum(split.values()) == pytest.approx(result.time, rel=1e-6)
+
+
+@pytest.mark.parametrize("solver", ["asc", "osqp", "penalty-gn"])
+def test_time_split_counts_model_evaluation_and_linear_algebra(solver):
+    result = sagfree.solve(sagfree.Problem(sagfree.scenes.horizontal(20)), solver)
+    split = result.time_split
+    assert split["model"] > 0 and split["linear_algebra"] > 0 and split["other"] >= 0
+    assert sum(split.values()) == pytest.approx(result.time, rel=1e-6)

@@ -37,4 +37,16 @@ def test_cross_solver_numbers_use_the_strands_every_solver_ran():
     asc = study.case("groom", "asc", "element").results
     expected = shifted_geometric_mean([r.time for r in asc[:2]], SHIFTS["time"])
     assert rows["asc"][5] == pytest.approx(1e3 * expected)
-    assert rows["asc"][9] == pytest.approx(1.0)
+    assert rows["asc"][10] == pytest.approx(1.0)
+
+
+def test_time_split_cell_gives_shares_of_the_summed_time():
+    from types import SimpleNamespace
+
+    from sagfree.reports.benchmarking import time_split_cell
+
+    results = [SimpleNamespace(time_split={"model": 1.0, "linear_algebra": 2.0, "other": 1.0}),
+               SimpleNamespace(time_split={"model": 3.0, "linear_algebra": 0.0, "other": 1.0}),
+               SimpleNamespace(time_split={})]
+    assert time_split_cell(results) == "50 / 25 / 25"
+    assert time_split_cell(results[2:]) == "-"

@@ -40,7 +40,9 @@ def test_markdown_tables_carry_the_numbers_of_the_results(tiny):
     text = files.markdown.read_text()
     per_strand = table_rows(text, "scene | strand")
     expected = [(c, k, r) for c in study.cases for k, r in enumerate(c.results)]
-    assert len(per_strand) == len(expected) == 18
+    # 3 strands: asc in both modes, penalty-gn and naive (no stiffness) in the first mode only
+    assert len(per_strand) == len(expected) == 12
+    assert not any(c.mode == "strand" and c.solver in ("naive", "penalty-gn") for c in study.cases)
     for row, (case, k, result) in zip(per_strand, expected):
         assert row[:5] == [case.scene, str(k), case.mode, case.solver, result.status]
         assert row[6:9] == [cell(result.residual_inf), cell(result.max_force), cell(result.objective)]

@@ -15,6 +15,7 @@ from sagfree.formulation import dofs
 from sagfree.formulation.parameters import REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import Equilibrium
+from sagfree.linalg import timing
 
 #: converged: |c|_inf <= tol and KKT distance <= kkt_tol; infeasible: no point of the box balances
 #: the load; max_iterations: stopped at a limit (max_iterations, max_seconds or a solver's own);
@@ -48,7 +49,10 @@ class Result:
     them and without bodies); support: the share of the strand's weight (and loads) they carry, the
     supports' total along -f_ext over |f_ext| summed (0 without bodies); setup_time: one-time cost
     (s) the solver paid before solving and that ``time`` excludes (Ipopt: building its instance
-    for a new strand size), 0 otherwise.
+    for a new strand size, compiling its model the first time), 0 otherwise; time_split: ``time``
+    split into seconds of model evaluation, linear algebra and the rest ({model, linear_algebra,
+    other}, linalg.timing; filled by the front end around a whole solve, empty when a solver function
+    is called directly).
     """
 
     solver: str
@@ -71,6 +75,7 @@ class Result:
     contact_forces: np.ndarray | None = None
     support: float = 0.0
     setup_time: float = 0.0
+    time_split: dict[str, float] = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -126,6 +131,12 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
     stability is measured there, and its sag over L goes to ``static_sag``."""
     if status not in STATUSES:
         raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
+    with timing.uncounted():  # after the solve: not part of its time, nor of its split
+        return _measured(problem, p, solver, status, message, iterations, time, history, floors, rest,
+                         setup_time)
+
+
+def _measured(problem, p, solver, status, message, iterations, time, history, floors, rest, setup_time):
     p = np.asarray(p, dtype=float).copy()
     eigenvalue = problem.stability(p) if rest is None else problem.stability(p, q=rest.q, frames=rest.frames)
     stable = bool(eigenvalue > 0)

@@ -154,7 +154,7 @@ def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_optio
     solver_options = check_options(solver, solver_options)
     check_problem_options(problem_options)
     if strands:  # in this process, so that forked workers start warm; the screen says what the wait is
-        announced_warm_up(solver, solver_options, problem_options, progress)
+        announced_warm_up(solver, solver_options, problem_options, progress, strands)
     return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
                        jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk, strand_timeout)
 

@@ -40,6 +40,7 @@ import numpy as np
 
 from sagfree.contract.optimality import TOL
 from sagfree.contract.result import Result, make_result
+from sagfree.linalg import timing
 from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
@@ -60,10 +61,11 @@ def solve_stabilized(function, problem: Problem, options: dict) -> Result:
     """``function(problem, **options)``, stabilized by the loop of the module docstring; an
     ``infeasible`` result with a residual force left gets the least static sag of its box
     (frontend.best_effort)."""
+    mark = timing.snapshot()
     result = _stabilized(function, problem, options)
     if result.status == "infeasible" and result.residual_inf > options.get("tol", TOL):
-        return with_least_sag(problem, result)
-    return result
+        result = with_least_sag(problem, result)
+    return dataclasses.replace(result, time_split=timing.split_since(mark, result.time))
 
 
 def _stabilized(function, problem: Problem, options: dict) -> Result:

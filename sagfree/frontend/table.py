@@ -22,13 +22,23 @@ class SolverUnavailable(RuntimeError):
 
 @dataclass(frozen=True)
 class Solver:
-    """One row of the table: the function, what it is, and whether it can run here."""
+    """One row of the table: the function, what it is, and whether it can run here.
+
+    prepare(problem, **options): builds what the solver needs per problem structure (Ipopt's
+    compiled instance) before a batch, so worker processes inherit it, calling ``announce()`` before
+    a noticeable wait; warm_options: options of
+    the untimed warm-up solve (frontend.warm) that differ from the batch's; uses_stiffness: its
+    answer depends on the stiffness mode (naive and the predecessor keep p0's stiffness).
+    """
 
     name: str
     function: Callable[..., Result]
     description: str
     available: Callable[[], bool] = field(default=lambda: True)
     requirement: str = ""
+    prepare: Callable[..., None] | None = None
+    warm_options: dict = field(default_factory=dict)
+    uses_stiffness: bool = True
 
     @property
     def options(self) -> dict[str, object]:
@@ -46,11 +56,14 @@ SOLVERS: dict[str, Solver] = {s.name: s for s in (
     Solver("ipopt", ipopt.solve_ipopt, "Ipopt through CasADi's nlpsol, exact Hessian, MUMPS",
            lambda: ipopt.available(),
            "CasADi's Ipopt plugin (casadi.has_nlpsol('ipopt') is False); the CasADi wheels on PyPI bundle it: "
-           "pip install --force-reinstall 'casadi>=3.6'"),
+           "pip install --force-reinstall 'casadi>=3.6'",
+           # the warm-up strand is of another size: load Ipopt, compile nothing for it
+           prepare=ipopt.prepare_ipopt, warm_options={"model": "casadi"}),
     Solver("osqp", osqp_sqp.solve_osqp, "SQP with OSQP subproblems", lambda: osqp_sqp.available(),
            "the osqp package (import osqp failed): pip install 'osqp>=1.0'"),
-    Solver("penalty-gn", penalty_gn.solve_penalty_gn, "the predecessor: rest shape by penalty Gauss-Newton"),
-    Solver("naive", naive.solve_naive, "no optimization: the Result of p0 (or p_start)"),
+    Solver("penalty-gn", penalty_gn.solve_penalty_gn, "the predecessor: rest shape by penalty Gauss-Newton",
+           uses_stiffness=False),
+    Solver("naive", naive.solve_naive, "no optimization: the Result of p0 (or p_start)", uses_stiffness=False),
 )}
 
 

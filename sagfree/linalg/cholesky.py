@@ -13,7 +13,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .timing import LINEAR_ALGEBRA, timed
 
+
+@timed(LINEAR_ALGEBRA)
 def band_cholesky(band: np.ndarray, shift: float = 0.0) -> np.ndarray | None:
     """Cholesky factor of H + shift I for H in LAPACK lower band storage band[k, j] = H[j + k, j];
     returned as cols[j, k] = L[j + k, j] (for ``band_solve``), or None if H + shift I is not
@@ -28,6 +31,7 @@ def band_cholesky(band: np.ndarray, shift: float = 0.0) -> np.ndarray | None:
     return cols
 
 
+@timed(LINEAR_ALGEBRA)
 def band_solve(factor: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """(L L^T)^-1 rhs for the factor of ``band_cholesky``."""
     out = np.empty(factor.shape[0])

@@ -5,6 +5,7 @@ import numba
 import numpy as np
 
 from .band import csc_arrays, dense_columns
+from .timing import LINEAR_ALGEBRA, timed
 from .cholesky import factor_active, solve_factored
 
 
@@ -20,6 +21,7 @@ class NormalFactor:
     The band factor is about ten times faster than a sparse LU of the same matrix.
     """
 
+    @timed(LINEAR_ALGEBRA)
     def __init__(self, J, d: np.ndarray, columns: np.ndarray, shift: float = 0.0):
         """J: (rows x n); d: (n,) column weights; columns: (n,) bool mask of the columns in A."""
         indptr, indices, data = csc_arrays(J)
@@ -46,6 +48,7 @@ class NormalFactor:
                        out)
         return out
 
+    @timed(LINEAR_ALGEBRA)
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """A^-1 rhs (only if ``definite``)."""
         x = self._band_solve(rhs)

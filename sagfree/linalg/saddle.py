@@ -14,8 +14,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
 
 from .band import csc_arrays, dense_columns
+from .timing import LINEAR_ALGEBRA, timed
 
 
+@timed(LINEAR_ALGEBRA)
 def constrained_step(J, w, gradient, c, free):
     """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] with W = diag(w), d = 0
     off F; None if the system is singular (J_F rank deficient: more constraints than free directions).
@@ -62,6 +64,7 @@ def constrained_step(J, w, gradient, c, free):
     return np.where(free, solution[:n], 0.0), solution[n:]
 
 
+@timed(LINEAR_ALGEBRA)
 def newton_kkt_step(J, W: sp.spmatrix, gradient, c, free):
     """(d, lam) of [[W_FF, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] for a sparse symmetric W
     (the exact Hessian of a Lagrangian), d = 0 off F; None if the system is singular.
