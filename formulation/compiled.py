@@ -142,13 +142,22 @@ class BatchFunction:
         elif self._driver is not None:
             outputs = [np.empty((count, r * c)) for r, c in self._out_shapes]
             in_type, out_type = self._pointer_types
-            self._driver(ctypes.c_longlong(count), in_type(*[a.ctypes.data for a in arrays]),
-                         out_type(*[a.ctypes.data for a in outputs]))
+            self._driver(ctypes.c_longlong(count), in_type(*[_address(a) for a in arrays]),
+                         out_type(*[_address(a) for a in outputs]))
         else:
             mapped = self.function.map(count, "serial")
             results = mapped.call([a.T for a in arrays])
             outputs = [np.asarray(o).T.reshape(count, -1) for o in results]
         return [_shaped(o, r, c) for o, (r, c) in zip(outputs, self._out_shapes)]
+
+
+def _address(array: np.ndarray) -> int:
+    """The data address of a C-contiguous array: through the buffer protocol (3x cheaper than
+    ``array.ctypes.data``, which dominated a stencil call's overhead), or ctypes for read-only ones."""
+    try:
+        return ctypes.addressof(ctypes.c_char.from_buffer(array))
+    except (TypeError, ValueError):
+        return array.ctypes.data
 
 
 def _shaped(flat: np.ndarray, rows: int, cols: int) -> np.ndarray:

@@ -139,12 +139,39 @@ def reference_twist(tangents: np.ndarray, a1: np.ndarray, previous: np.ndarray) 
 def transport_frames(frames: Frames, points: np.ndarray) -> Frames:
     """Time-parallel transport of ``frames`` to a moved configuration ``points`` (Bergou 2010).
 
-    Each a1^j is transported from the old tangent to the new one; the reference twist is updated.
+    Each a1^j is transported from the old tangent to the new one; the reference twist is updated
+    (``reference_twist``; the same formulas in one compiled loop, called at every time step).
     """
-    tangents = unit(edges(points))
-    a1 = parallel_transport(frames.tangents, tangents, frames.a1)
-    a1 = unit(a1 - np.sum(a1 * tangents, axis=-1, keepdims=True) * tangents)
-    return Frames(tangents, a1, reference_twist(tangents, a1, frames.reference_twist))
+    tangents, a1, twist = _transported(np.ascontiguousarray(points, dtype=float), frames.tangents, frames.a1,
+                                       frames.reference_twist)
+    return Frames(tangents, a1, twist)
+
+
+@numba.njit(cache=True)
+def _transport(t_from, t_to, v):  # pragma: no cover - compiled
+    b = np.cross(t_from, t_to)
+    c = t_from @ t_to
+    return c * v + np.cross(b, v) + b * (b @ v) / (1.0 + c)
+
+
+@numba.njit(cache=True)
+def _transported(points, old_tangents, old_a1, old_twist):  # pragma: no cover - compiled
+    """transport_frames' loop: new tangents, a1 transported and re-orthonormalized, reference twist."""
+    m = points.shape[0] - 1
+    tangents, a1, twist = np.empty((m, 3)), np.empty((m, 3)), np.empty(m - 1)
+    for j in range(m):
+        e = points[j + 1] - points[j]
+        tangents[j] = e / np.sqrt(e @ e)
+        a = _transport(old_tangents[j], tangents[j], old_a1[j])
+        a -= (a @ tangents[j]) * tangents[j]
+        a1[j] = a / np.sqrt(a @ a)
+    for i in range(m - 1):
+        t = tangents[i + 1]
+        moved = _transport(tangents[i], t, a1[i])
+        angle = old_twist[i]
+        rotated = np.cos(angle) * moved + np.sin(angle) * np.cross(t, moved)
+        twist[i] = angle + np.arctan2(np.cross(rotated, a1[i + 1]) @ t, rotated @ a1[i + 1])
+    return tangents, a1, twist
 
 
 def material_frames(frames: Frames, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

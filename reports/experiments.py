@@ -25,6 +25,7 @@ from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import CHECK_TOLERANCE, Simulation, equilibrium, simulate
 from sagfree.scenes import flipped, horizontal
+from sagfree.frontend.batch import map_strands
 from sagfree.frontend.solve import solve
 from sagfree.contract.result import Result
 
@@ -147,6 +148,19 @@ def stiffness_modes(steps: int = 300, dt: float = 1e-3, youngs_modulus: float = 
     return runs
 
 
+def _run(name: str, steps: int, dt: float):
+    return {"frames": frame_averaging, "slerp": slerp, "modes": stiffness_modes}[name](steps, dt)
+
+
+def _crashed(message: str):
+    raise RuntimeError(f"an experiment's worker process failed: {message}")
+
+
+def run_all(steps: int = 300, dt: float = 1e-3, jobs: int | None = None):
+    """(frame_averaging, slerp, stiffness_modes) runs, the three on worker processes."""
+    return tuple(map_strands(_run, [("frames",), ("slerp",), ("modes",)], (steps, dt), jobs, on_crash=_crashed))
+
+
 def draw(frames: list[ModelRun], slerps: list[ModelRun], modes: list[StiffnessModeRun], path) -> None:
     """The experiments' figure: displacement over time of IV.A and IV.B, bend multiplier along the
     strand of V (S Figs. 2-4 as curves)."""
@@ -154,15 +168,18 @@ def draw(frames: list[ModelRun], slerps: list[ModelRun], modes: list[StiffnessMo
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fig, axes = plt.subplots(1, 3, figsize=(13.5, 3.6))
+    styles = [dict(linestyle="-", linewidth=3.0, alpha=0.5), dict(linestyle="--", linewidth=2.0),
+              dict(linestyle="-.", linewidth=1.5), dict(linestyle=":", linewidth=1.5)]
     for ax, runs, title in ((axes[0], frames, "IV.A: 2d-average vs 4d, E 1e10 Pa"),
                             (axes[1], slerps, "IV.B: 2d-slerp vs 4d, flipped frames")):
-        for run in runs:
+        for run, style in zip(runs, styles):
             length = SCENES[run.scene]().length
             label = f"{run.curvature}, {run.scene}" + (f", E {run.youngs_modulus:.0e} Pa" if runs is slerps else "")
-            ax.plot(run.simulation.times, np.maximum(run.simulation.displacement / length, 1e-16), label=label)
-        ax.set(yscale="log", xlabel="time (s)", ylabel="largest displacement / L", title=title)
+            ax.plot(run.simulation.times, run.simulation.displacement / length, label=label, **style)
+        ax.set(xlabel="time (s)", ylabel="largest displacement / L", title=title)
         ax.legend(fontsize=6)
     for run in modes:
         bend = np.asarray(run.result.physical["bend_modulus"])
@@ -171,6 +188,8 @@ def draw(frames: list[ModelRun], slerps: list[ModelRun], modes: list[StiffnessMo
                      label=f"{run.mode}: max {run.bend_max:.3g}, root response {run.root_response:.2g} L")
     axes[2].set(yscale="log", xlabel="interior vertex along the strand (root at 0)", ylabel="bend modulus / E",
                 title="V: naive, per strand, per element, E 1e9 Pa")
+    axes[2].yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    axes[2].yaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
     axes[2].legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
@@ -191,8 +210,7 @@ def document_blocks(steps: int = 300, dt: float = 1e-3, directory=None) -> list:
         return [[r.scene, r.curvature, r.youngs_modulus, r.bending_energy, r.sag, r.final,
                  r.static_sag if r.static_converged else "no convergence", r.newton, r.converged] for r in runs]
 
-    modes = stiffness_modes(steps, dt)
-    frames, slerps = frame_averaging(steps, dt), slerp(steps, dt)
+    frames, slerps, modes = run_all(steps, dt)
     figure = []
     if directory is not None:
         (Path(directory) / "figures").mkdir(parents=True, exist_ok=True)
@@ -200,7 +218,7 @@ def document_blocks(steps: int = 300, dt: float = 1e-3, directory=None) -> list:
         figure = [Figure("figures/experiments.png", (
             "The supplement's experiments on `horizontal` (30 vertices, 10 cm). Left and middle: the largest "
             "vertex displacement over the strand length against time (s), from rest at the groomed shape with "
-            "the naive parameters (log scale; 2d-average with flipped frames has no bending energy and falls "
+            "the naive parameters (2d-average with flipped frames has no bending energy and falls "
             "like a chain, S Fig. 2). Right: the bend modulus over Young's modulus at each interior vertex "
             "for the naive parameters, one stiffness per strand and one per element (S Fig. 4); the legend "
             "gives the largest multiplier and the tip's deflection over L while the root rises by 1 cm."),

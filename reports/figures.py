@@ -224,6 +224,11 @@ def time_against_size(study: Study, path: Path) -> Path:
         means = [np.mean([t for n, t in points if n == size]) for size in sizes]
         ax.loglog(sizes, 1e3 * np.array(means), marker="o", markersize=3, label=label)
     ax.set(xlabel="vertices per strand", ylabel="ms per strand (mean)", title="time against strand size")
+    sizes = sorted({n for points in series.values() for n, _ in points})
+    ax.xaxis.set_major_locator(matplotlib.ticker.FixedLocator(sizes))
+    for axis in (ax.xaxis, ax.yaxis):  # plain numbers, no 3 x 10^1 minor labels
+        axis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.legend(fontsize=6)
     return _save(fig, path)
 
