@@ -294,16 +294,17 @@ FIGURES = {
 
 def draw_all(study: Study, directory: Path, sizes: Study | None = None) -> dict[str, Path]:
     """Every figure of FIGURES that the study has data for, as PNGs in ``directory``; the time figure
-    from ``sizes`` (a study of the same strands at several sizes) when given."""
+    only from ``sizes`` (a study of the same kind of strands at several sizes: the scenes of an
+    ordinary study are unrelated, and a line through them would read as a sweep)."""
     directory.mkdir(parents=True, exist_ok=True)
     drawn = {}
     for name, (function, _) in FIGURES.items():
-        if name == "sag" and not any(c.checks for c in study.cases):
+        if (name == "sag" and not any(c.checks for c in study.cases)) or (name == "time" and sizes is None):
             continue
         if name == "droop" and not any(study.case(s, "naive", study.settings["modes"][0]) and
                                        study.case(s, "asc", study.settings["modes"][0]) for s in study.scenes):
             continue
         if name == "profiles" and not any(len(comparable_cases(study, c.scene, c.mode)) > 1 for c in study.cases):
             continue
-        drawn[name] = function(sizes if name == "time" and sizes is not None else study, directory / f"{name}.png")
+        drawn[name] = function(sizes if name == "time" else study, directory / f"{name}.png")
     return drawn

@@ -81,7 +81,7 @@ class Study:
                     "residual_inf": r.residual_inf, "max_force_N": r.max_force, "objective": r.objective,
                     "bend_max": bend.get("max", float("nan")), "bend_mean": bend.get("mean", float("nan")),
                     "bend_stiffened": bend.get("stiffened", float("nan")),
-                    "min_eigenvalue_s-2": r.min_eigenvalue, "stable": r.stable,
+                    "min_eigenvalue_s-2": r.min_eigenvalue, "stable": r.stable, "support": r.support,
                     "sag": check.relative_sag if check else float("nan"),
                     "push": check.push if check else float("nan"), "holds": check.holds if check else False,
                     "static_sag": check.static_sag if check else float("nan"),
