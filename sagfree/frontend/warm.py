@@ -7,6 +7,8 @@ solve of a solver in a process, ``warm_up`` solves a small strand with the same 
 options, untimed: the batch runner does it in every process it solves in (a forked worker inherits
 its parent's), ``sagfree.solve`` before its first call. What stays per strand size (building Ipopt's
 instance for a new size) is the solver's own ``Result.setup_time``, kept out of ``Result.time``.
+Strands resting on bodies run further compiled code (contact detection and forces, stability on the
+bodies' tangent planes): with bodies, the warm-up strand rests on the first of them.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from functools import partial
 
 import numpy as np
 
+from sagfree.formulation.bodies import parse_body
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.strand import Strand
 
@@ -28,7 +31,28 @@ _MODEL_OPTIONS = ("curvature", "energies", "stiffness", "couple_twist", "optimiz
 
 
 def _key(solver: str, problem_options: dict | None) -> tuple:
-    return (solver, repr([(name, (problem_options or {}).get(name)) for name in _MODEL_OPTIONS]))
+    options = problem_options or {}
+    return (solver, repr([(name, options.get(name)) for name in _MODEL_OPTIONS]), bool(options.get("bodies")))
+
+
+def _warm_strand(problem_options: dict) -> Problem:
+    """A small strand (8 vertices, 2 cm) with the model options; with bodies, its middle vertex rests
+    one radius above the first body's top (the surface point nearest to a point far above it)."""
+    model = {k: v for k, v in problem_options.items() if k in _MODEL_OPTIONS}
+    x = np.linspace(0.0, 0.02, 8)
+    points = np.column_stack([x, 0.002 * np.sin(200 * x), 0.0 * x])
+    if not problem_options.get("bodies"):
+        return Problem(Strand(points), **model)
+    body = parse_body(problem_options["bodies"][0])
+    above = np.array([[0.0, 0.0, 100.0]])
+    distance, normal, _ = body.evaluate(above)
+    n = normal[0]
+    top = above[0] - distance[0] * n
+    along = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    along /= np.linalg.norm(along)
+    strand = Strand(top + Strand(points).radius * n + np.outer(x - 0.01, along))
+    return Problem(strand, bodies=[body], **{k: v for k, v in problem_options.items()
+                                             if k in _MODEL_OPTIONS or k == "contact_distance"})
 
 
 def is_warm(solver: str, problem_options: dict | None) -> bool:
@@ -40,21 +64,28 @@ def announced_warm_up(solver: str, solver_options: dict | None = None, problem_o
     """``warm_up`` and ``prepare`` for ``strands``, saying on the screen (with ``progress``) what the
     wait is when it is noticeable; returns the seconds both took."""
     start = time.perf_counter()
-    announce = progress and not is_warm(solver, problem_options)
-    if announce:
-        print(f"{solver}: loading the compiled model (compiling it on the first run only) ...", flush=True)
+    line_open = [False]  # a "... " line waiting for its "ready" (one line per solver when all is quick)
+
+    def say(text: str) -> None:
+        if progress:
+            print(("\n" if line_open[0] else "") + text, end=" ", flush=True)
+            line_open[0] = True
+
+    if not is_warm(solver, problem_options):
+        say(f"{solver}: loading the compiled model (compiling it on the first run only) ...")
     warm_up(solver, solver_options, problem_options)
-    prepare(solver, strands, solver_options, problem_options, progress)
+    prepare(solver, strands, solver_options, problem_options, say)
     seconds = time.perf_counter() - start
-    if announce or seconds > 1.0:
-        print(f"{solver}: model ready in {seconds:.1f} s (not counted in any solver's time)", flush=True)
+    if line_open[0]:
+        print(f"ready in {seconds:.1f} s (not counted in any solver's time)", flush=True)
     return seconds
 
 
 def prepare(solver: str, strands, solver_options: dict | None = None, problem_options: dict | None = None,
-            progress: bool = False) -> None:
+            say=None) -> None:
     """The solver's per-structure preparation (Solver.prepare: Ipopt's compiled instance) for the
-    first strand of each size in ``strands``, in this process. Never raises (as warm_up)."""
+    first strand of each size in ``strands``, in this process; ``say(text)`` before a noticeable
+    wait. Never raises (as warm_up)."""
     entry = solver_entry(solver)
     if entry.prepare is None:
         return
@@ -62,9 +93,9 @@ def prepare(solver: str, strands, solver_options: dict | None = None, problem_op
     for n, strand in {s.n_vertices: s for s in reversed(list(strands))}.items():
         try:
             problem = Problem(strand, **(problem_options or {}))
-            entry.prepare(problem, announce=partial(print, f"{solver}: building its model for {n}-vertex strands "
-                                                   "(compiling it on the first run only) ...", flush=True)
-                          if progress else None, **options)
+            entry.prepare(problem, announce=partial(say, f"{solver}: building its model for {n}-vertex strands "
+                                                   "(compiling it on the first run only) ...") if say else None,
+                          **options)
         except Exception:  # noqa: BLE001 - the batch reports real errors
             pass
 
@@ -78,10 +109,8 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
         return 0.0
     start = time.perf_counter()
     _WARM.add(key)
-    model = {k: v for k, v in (problem_options or {}).items() if k in _MODEL_OPTIONS}
-    x = np.linspace(0.0, 0.02, 8)
     try:
-        problem = Problem(Strand(np.column_stack([x, 0.002 * np.sin(200 * x), 0.0 * x])), **model)
+        problem = _warm_strand(problem_options or {})
         entry = solver_entry(solver)
         options = {k: v for k, v in (solver_options or {}).items() if k != "p_start"}
         solve_stabilized(entry.function, problem, {**options, **entry.warm_options})
