@@ -42,7 +42,7 @@ import numpy as np
 
 from sagfree.contract.optimality import KKT_TOL, TOL, kkt_optimality
 from sagfree.contract.result import Result, make_result
-from sagfree.formulation.compiled import compile_library, generated_c
+from sagfree.formulation.compiled import compile_library, generated_c, start_compiling
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
 from sagfree.formulation.symbolic import SymbolicNLP, structure_key
@@ -110,10 +110,8 @@ def _compiled(solver: ca.Function, nlp: SymbolicNLP, settings: dict) -> ca.Funct
     """The same Ipopt instance with its NLP functions compiled to C (or ``solver`` itself, after a
     one-time warning, when no compiler works)."""
     global _warned
-    oracle = ca.Function("nlp", [nlp.p, nlp.data], [nlp.objective, nlp.constraint], ["x", "p"], ["f", "g"])
-    source = generated_c([oracle, *(solver.get_function(name) for name in _NLP_FUNCTIONS)])
     try:
-        library = compile_library(source, "ipopt_nlp", "-O1")
+        library = compile_library(_nlp_source(solver, nlp), "ipopt_nlp", "-O1")
         return ca.nlpsol("sagfree_ipopt", "ipopt", str(library), settings)
     except (OSError, RuntimeError) as exc:
         if not _warned:
@@ -122,6 +120,27 @@ def _compiled(solver: ca.Function, nlp: SymbolicNLP, settings: dict) -> ca.Funct
                           "CasADi's virtual machine instead (same iterates, about 6x slower).",
                           RuntimeWarning, stacklevel=3)
         return solver
+
+
+def _nlp_source(solver: ca.Function, nlp: SymbolicNLP) -> str:
+    """C of the functions Ipopt calls (the oracle and its derivatives, as CasADi builds them)."""
+    oracle = ca.Function("nlp", [nlp.p, nlp.data], [nlp.objective, nlp.constraint], ["x", "p"], ["f", "g"])
+    return generated_c([oracle, *(solver.get_function(name) for name in _NLP_FUNCTIONS)])
+
+
+def precompile_ipopt(problem: Problem, tol: float = TOL, max_iterations: int = 3000, max_seconds: float = 600.0,
+                     model: str | None = None, **_) -> None:
+    """Start compiling the problem structure's NLP in the background (a compiler process), so that
+    it overlaps other work before Ipopt's turn (a study's other solvers); ``prepare_ipopt`` or the
+    first solve then waits for it."""
+    options, model = ipopt_options(tol, max_iterations, max_seconds), model or default_model()
+    if model != "compiled" or _key(problem, options, model) in _SOLVERS:
+        return
+    nlp = SymbolicNLP.for_problem(problem)
+    solver = ca.nlpsol("sagfree_ipopt", "ipopt", {"x": nlp.p, "p": nlp.data, "f": nlp.objective,
+                                                  "g": nlp.constraint},
+                       {"ipopt": options, "print_time": False, "error_on_fail": False})
+    start_compiling(_nlp_source(solver, nlp), "ipopt_nlp", "-O1")
 
 
 def _key(problem: Problem, options: dict, model: str) -> tuple:

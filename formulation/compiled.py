@@ -20,6 +20,7 @@ import os
 import subprocess
 import tempfile
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
@@ -72,23 +73,70 @@ def _source(functions: list[ca.Function]) -> str:
     return source
 
 
+@dataclass
+class _Build:
+    """A compiler run started in the background by this process (start_compiling)."""
+
+    pid: int
+    process: subprocess.Popen
+    directory: tempfile.TemporaryDirectory
+    built: Path
+    library: Path
+
+
+#: library path -> its background build
+_BUILDS: dict[Path, _Build] = {}
+
+
+def _library(source: str, stem: str) -> Path:
+    return cache_dir() / f"{stem}_{hashlib.sha256(source.encode()).hexdigest()[:24]}.so"
+
+
+def start_compiling(source: str, stem: str = "stencils", optimization: str = "-O2") -> None:
+    """Start building the library of ``source`` in the background (a compiler process, no thread),
+    so that it overlaps other work; ``compile_library`` of the same source then waits for it. A
+    no-op if the library is cached or already being built."""
+    library = _library(source, stem)
+    if library.exists() or library in _BUILDS:
+        return
+    library.parent.mkdir(parents=True, exist_ok=True)
+    directory = tempfile.TemporaryDirectory(dir=library.parent)
+    c_file, built = Path(directory.name, "generated.c"), Path(directory.name, "generated.so")
+    c_file.write_text(source)
+    process = subprocess.Popen(_command(optimization, built, c_file), stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+    _BUILDS[library] = _Build(os.getpid(), process, directory, built, library)
+
+
+def _command(optimization: str, built: Path, c_file: Path) -> list[str]:
+    return [os.environ.get("CC", "cc"), optimization, "-fPIC", "-shared", "-o", str(built), str(c_file), "-lm"]
+
+
 def compile_library(source: str, stem: str = "stencils", optimization: str = "-O2") -> Path:
-    """Build (or reuse) the shared library for the C ``source``, cached as ``{stem}_{hash}.so``;
-    raises OSError/CalledProcessError."""
-    digest = hashlib.sha256(source.encode()).hexdigest()[:24]
-    library = cache_dir() / f"{stem}_{digest}.so"
+    """Build (or reuse) the shared library for the C ``source``, cached as ``{stem}_{hash}.so``
+    (waiting for a build ``start_compiling`` began in this process); raises OSError/CalledProcessError."""
+    library = _library(source, stem)
+    build = _BUILDS.get(library)
+    if build is not None and build.pid == os.getpid():  # a forked child neither waits for nor touches it
+        del _BUILDS[library]
+        try:
+            _, errors = build.process.communicate(timeout=600)
+            if build.process.returncode == 0:
+                os.replace(build.built, library)
+        finally:
+            build.directory.cleanup()
+        if build.process.returncode != 0:
+            raise OSError(f"{os.environ.get('CC', 'cc')} failed: {errors.strip()[-2000:]}")
     if library.exists():
         return library
     library.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-        c_file = Path(tmp, "stencils.c")
+        c_file = Path(tmp, "generated.c")
         c_file.write_text(source)
-        built = Path(tmp, "stencils.so")
-        compiler = os.environ.get("CC", "cc")
-        run = subprocess.run([compiler, optimization, "-fPIC", "-shared", "-o", str(built), str(c_file), "-lm"],
-                             capture_output=True, text=True, timeout=600)
+        built = Path(tmp, "generated.so")
+        run = subprocess.run(_command(optimization, built, c_file), capture_output=True, text=True, timeout=600)
         if run.returncode != 0:
-            raise OSError(f"{compiler} failed: {run.stderr.strip()[-2000:]}")
+            raise OSError(f"{os.environ.get('CC', 'cc')} failed: {run.stderr.strip()[-2000:]}")
         os.replace(built, library)  # atomic: concurrent processes never load a half-written file
     return library
 

@@ -20,7 +20,7 @@ from sagfree.formulation.strand import Strand
 from sagfree.frontend.batch import optimize, simulate_strands
 from sagfree.frontend.options import check_options
 from sagfree.frontend.table import SOLVERS, solver_entry
-from sagfree.frontend.warm import announced_warm_up
+from sagfree.frontend.warm import announced_warm_up, precompile
 
 MODES = ("element", "strand")
 
@@ -118,6 +118,13 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
                                               check_limits=dict(check_limits), push_limits=dict(push_limits),
                                               solver_options=dict(solver_options),
                                               scene_options=dict(scene_options)))
+    def start_compiling() -> None:  # what can compile while other solvers work (Ipopt's NLP), in the background
+        for scene, strands in scenes.items():
+            for mode in modes:
+                for solver in scene_solvers.get(scene, solvers):
+                    precompile(solver, strands[: limits.get(solver, len(strands))], solver_options.get(solver),
+                               {"stiffness": mode, **scene_options.get(scene, {})})
+
     for scene, strands in scenes.items():
         for mode in modes:
             for solver in scene_solvers.get(scene, solvers):
@@ -127,6 +134,8 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
                 options = {"stiffness": mode, **scene_options.get(scene, {})}
                 warm = (announced_warm_up(solver, solver_options.get(solver), options, progress, batch)
                         if batch else 0.0)
+                if not study.cases:  # after the first warm-up, which compiled the stencils on screen
+                    start_compiling()
                 start = time.perf_counter()
                 results = optimize(batch, solver=solver, jobs=jobs, progress=progress, stiffness=mode,
                                    solver_options=solver_options.get(solver), scheduler=scheduler,

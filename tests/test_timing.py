@@ -3,6 +3,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 import sagfree
 
@@ -38,3 +39,40 @@ def test_ipopt_instance_build_is_setup_not_solve_time():
     again = sagfree.solve(sagfree.Problem(strand, stabilize=False), "ipopt")
     assert first.setup_time > 0 and again.setup_time < first.setup_time
     assert first.time < 10 * again.time
+
+
+def test_a_kernel_compiled_during_a_solve_is_setup_not_solve_time(monkeypatch):
+    """A numba kernel compiled in the middle of a solve (a branch the warm-up did not run) moves
+    from Result.time to Result.setup_time."""
+    import time
+
+    import numba
+    import numpy as np
+
+    import sagfree
+    from sagfree.solvers import alm
+
+    problem = sagfree.Problem(sagfree.scenes.horizontal(12))
+    sagfree.solve(problem)  # warm
+
+    @numba.njit  # not cached: compiles on the first call, inside the solve
+    def fresh(x):
+        return x.sum() * 0.0
+
+    original = alm.solve_box_qp
+    calls = []
+
+    def compiling_qp(*args, **kwargs):
+        if not calls:
+            fresh(np.ones(3))
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(alm, "solve_box_qp", compiling_qp)
+    start = time.perf_counter()
+    result = sagfree.solve(problem)
+    wall = time.perf_counter() - start
+    assert calls and result.setup_time > 0.05            # numba took its time compiling `fresh`
+    assert result.time < wall - result.setup_time + 1e-3  # ... and it is not in the solve's time
+    assert sum(result.time_split.values()) == pytest.approx(result.time, rel=1e-6)
+    assert result.time_split["linear_algebra"] >= 0

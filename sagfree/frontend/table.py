@@ -26,7 +26,8 @@ class Solver:
 
     prepare(problem, **options): builds what the solver needs per problem structure (Ipopt's
     compiled instance) before a batch, so worker processes inherit it, calling ``announce()`` before
-    a noticeable wait; warm_options: options of
+    a noticeable wait; precompile(problem, **options): starts that work in the background (a study
+    starts it for every solver before the first one runs); warm_options: options of
     the untimed warm-up solve (frontend.warm) that differ from the batch's; uses_stiffness: its
     answer depends on the stiffness mode (naive and the predecessor keep p0's stiffness).
     """
@@ -37,6 +38,7 @@ class Solver:
     available: Callable[[], bool] = field(default=lambda: True)
     requirement: str = ""
     prepare: Callable[..., None] | None = None
+    precompile: Callable[..., None] | None = None
     warm_options: dict = field(default_factory=dict)
     uses_stiffness: bool = True
 
@@ -58,7 +60,7 @@ SOLVERS: dict[str, Solver] = {s.name: s for s in (
            "CasADi's Ipopt plugin (casadi.has_nlpsol('ipopt') is False); the CasADi wheels on PyPI bundle it: "
            "pip install --force-reinstall 'casadi>=3.6'",
            # the warm-up strand is of another size: load Ipopt, compile nothing for it
-           prepare=ipopt.prepare_ipopt, warm_options={"model": "casadi"}),
+           prepare=ipopt.prepare_ipopt, precompile=ipopt.precompile_ipopt, warm_options={"model": "casadi"}),
     Solver("osqp", osqp_sqp.solve_osqp, "SQP with OSQP subproblems", lambda: osqp_sqp.available(),
            "the osqp package (import osqp failed): pip install 'osqp>=1.0'"),
     Solver("penalty-gn", penalty_gn.solve_penalty_gn, "the predecessor: rest shape by penalty Gauss-Newton",

@@ -100,6 +100,21 @@ def prepare(solver: str, strands, solver_options: dict | None = None, problem_op
             pass
 
 
+def precompile(solver: str, strands, solver_options: dict | None = None,
+               problem_options: dict | None = None) -> None:
+    """Start the solver's per-structure compilation (Solver.precompile) for the first strand of
+    each size in ``strands`` in the background; ``prepare`` later waits for it. Never raises."""
+    entry = solver_entry(solver)
+    if entry.precompile is None:
+        return
+    options = {k: v for k, v in (solver_options or {}).items() if k != "p_start"}
+    for strand in {s.n_vertices: s for s in reversed(list(strands))}.values():
+        try:
+            entry.precompile(Problem(strand, **(problem_options or {})), **options)
+        except Exception:  # noqa: BLE001 - the batch reports real errors
+            pass
+
+
 def warm_up(solver: str, solver_options: dict | None = None, problem_options: dict | None = None) -> float:
     """Solve a small strand with ``solver`` once per process and model options, untimed (module
     docstring); returns the seconds it took (0 if already warm). Never raises: a strand the real

@@ -9,6 +9,11 @@ iteration logic, line searches, Python). Ipopt adds the evaluation times CasADi 
 
 Nested timed calls count once, in the outermost category (a Jacobian evaluated inside a timed QP
 is linear algebra). One strand is solved at a time per process, so plain module counters suffice.
+
+Numba compiles a kernel the first time a branch runs it (cached on disk afterwards): a cold run's
+first strand through the interior-point fallback paid 7 s for it. Numba announces each compilation
+(its ``numba:compile`` event); the seconds go to ``compile``, out of the category they interrupted,
+and the front end moves them from ``Result.time`` to ``Result.setup_time``.
 """
 from __future__ import annotations
 
@@ -16,11 +21,38 @@ import contextlib
 import functools
 import time
 
-MODEL, LINEAR_ALGEBRA = "model", "linear_algebra"
+import numba.core.event
+
+MODEL, LINEAR_ALGEBRA, COMPILE = "model", "linear_algebra", "compile"
 CATEGORIES = (MODEL, LINEAR_ALGEBRA)
 
-_seconds = {MODEL: 0.0, LINEAR_ALGEBRA: 0.0}
+_seconds = {MODEL: 0.0, LINEAR_ALGEBRA: 0.0, COMPILE: 0.0}
 _depth = 0
+_active: str | None = None  # the category being timed, if any
+_paused = 0                 # inside ``uncounted``: not part of any solve's time
+
+
+class _CompileListener(numba.core.event.Listener):
+    """Adds the seconds of each outermost numba compilation to COMPILE (module docstring)."""
+
+    def __init__(self):
+        self.depth, self.start = 0, 0.0
+
+    def on_start(self, event):
+        if self.depth == 0:
+            self.start = time.perf_counter()
+        self.depth += 1
+
+    def on_end(self, event):
+        self.depth -= 1
+        if self.depth == 0 and not _paused:
+            seconds = time.perf_counter() - self.start
+            _seconds[COMPILE] += seconds
+            if _active is not None:
+                _seconds[_active] -= seconds
+
+
+numba.core.event.register("numba:compile", _CompileListener())
 
 
 def timed(category: str):
@@ -31,15 +63,15 @@ def timed(category: str):
     def decorate(function):
         @functools.wraps(function)
         def wrapper(*args, **kwargs):
-            global _depth
+            global _depth, _active
             if _depth:
                 return function(*args, **kwargs)
-            _depth = 1
+            _depth, _active = 1, category
             start = time.perf_counter()
             try:
                 return function(*args, **kwargs)
             finally:
-                _depth = 0
+                _depth, _active = 0, None
                 _seconds[category] += time.perf_counter() - start
         return wrapper
     return decorate
@@ -48,12 +80,14 @@ def timed(category: str):
 @contextlib.contextmanager
 def uncounted():
     """Nothing inside counts in any category (measuring a solution after its time was taken)."""
-    global _depth
+    global _depth, _paused
     _depth += 1
+    _paused += 1
     try:
         yield
     finally:
         _depth -= 1
+        _paused -= 1
 
 
 def add(category: str, seconds: float) -> None:
@@ -63,6 +97,11 @@ def add(category: str, seconds: float) -> None:
 
 def snapshot() -> dict[str, float]:
     return dict(_seconds)
+
+
+def compiled_since(mark: dict[str, float]) -> float:
+    """Seconds numba spent compiling since ``mark`` (a ``snapshot``)."""
+    return _seconds[COMPILE] - mark[COMPILE]
 
 
 def split_since(mark: dict[str, float], total: float) -> dict[str, float]:
