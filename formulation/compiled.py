@@ -14,9 +14,11 @@ Inputs are arrays of shape (N, size_k); outputs are (N,) for scalars, (N, rows) 
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import os
+import signal
 import subprocess
 import tempfile
 import warnings
@@ -93,9 +95,10 @@ def _library(source: str, stem: str) -> Path:
 
 
 def start_compiling(source: str, stem: str = "stencils", optimization: str = "-O2") -> None:
-    """Start building the library of ``source`` in the background (a compiler process, no thread),
-    so that it overlaps other work; ``compile_library`` of the same source then waits for it. A
-    no-op if the library is cached or already being built."""
+    """Start building the library of ``source`` in the background (a compiler process at lower
+    priority, no thread), so that it overlaps other work (``builds_paused`` stops it during timed
+    batches); ``compile_library`` of the same source then waits for it. A no-op if the library is
+    cached or already being built."""
     library = _library(source, stem)
     if library.exists() or library in _BUILDS:
         return
@@ -104,8 +107,23 @@ def start_compiling(source: str, stem: str = "stencils", optimization: str = "-O
     c_file, built = Path(directory.name, "generated.c"), Path(directory.name, "generated.so")
     c_file.write_text(source)
     process = subprocess.Popen(_command(optimization, built, c_file), stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE, text=True)
+                               stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.nice(10))
     _BUILDS[library] = _Build(os.getpid(), process, directory, built, library)
+
+
+@contextlib.contextmanager
+def builds_paused():
+    """Background builds of this process stopped (SIGSTOP) inside, continued after: a timed batch
+    must not share the cores with a compiler, or its times depend on whether this was a first run."""
+    running = [b.process for b in _BUILDS.values() if b.pid == os.getpid() and b.process.poll() is None]
+    for process in running:
+        process.send_signal(signal.SIGSTOP)
+    try:
+        yield
+    finally:
+        for process in running:
+            if process.poll() is None:
+                process.send_signal(signal.SIGCONT)
 
 
 def _command(optimization: str, built: Path, c_file: Path) -> list[str]:

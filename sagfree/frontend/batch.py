@@ -22,6 +22,7 @@ from functools import partial
 import numpy as np
 
 from sagfree.contract.result import Result, failed_result
+from sagfree.formulation.compiled import builds_paused
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import SagCheck, sag_check
 from sagfree.formulation.strand import Strand
@@ -155,8 +156,10 @@ def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_optio
     check_problem_options(problem_options)
     if strands:  # in this process, so that forked workers start warm; the screen says what the wait is
         announced_warm_up(solver, solver_options, problem_options, progress, strands)
-    return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
-                       jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk, strand_timeout)
+    with builds_paused():  # a background compiler (formulation.compiled) never shares the cores with timing
+        return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
+                           jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk,
+                           strand_timeout)
 
 
 def _solve(strand, solver, solver_options, problem_options) -> Result:
