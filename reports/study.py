@@ -118,6 +118,7 @@ def run_study(scenes: dict[str, list[Strand]], solvers=tuple(SOLVERS), modes=("e
                                               check_limits=dict(check_limits), push_limits=dict(push_limits),
                                               solver_options=dict(solver_options),
                                               scene_options=dict(scene_options)))
+
     def start_compiling() -> None:  # what can compile while other solvers work (Ipopt's NLP), in the background
         for scene, strands in scenes.items():
             for mode in modes:

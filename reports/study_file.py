@@ -41,8 +41,10 @@ from __future__ import annotations
 
 import re
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -54,6 +56,10 @@ from sagfree.frontend.options import check_options
 from sagfree.frontend.table import SOLVERS, solver_entry
 from sagfree.scenes import load
 from sagfree.scenes.catalog import BUILTIN, SCENE_BODIES
+
+if TYPE_CHECKING:  # imported where a study runs: matplotlib is slow, and a bad file must fail in < 1 s
+    from .report import ReportFiles
+    from .study import Study
 
 TOP_KEYS = {"title": str, "out": str, "solvers": list, "modes": list, "curvatures": list, "simulate": bool,
             "steps": int, "dt": float, "limits": dict, "check_limits": dict, "push_limits": dict, "scenes": list,
@@ -204,8 +210,8 @@ class StudyRun:
     """What running a study file produced: the Study, its report files, the derivative checks
     (passed, run; (0, 0) without ``derivatives``) and the wall time (s)."""
 
-    study: object
-    files: object
+    study: Study
+    files: ReportFiles
     checks_passed: int = 0
     checks_total: int = 0
     seconds: float = 0.0
@@ -215,8 +221,6 @@ def run_study_file(path, out: str | None = None, jobs: int | None = None, progre
                    pdf: bool = True, spec: StudySpec | None = None) -> StudyRun:
     """Run the study of ``path`` (or the already loaded ``spec``) with its sections and write its
     report to ``out`` (default: the file's ``out``)."""
-    import time
-
     from . import sections
     from .document import Paragraph
     from .report import write_report

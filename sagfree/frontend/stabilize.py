@@ -40,10 +40,10 @@ import numpy as np
 
 from sagfree.contract.optimality import TOL
 from sagfree.contract.result import Result, make_result
-from sagfree.linalg import timing
 from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
+from sagfree.linalg import timing
 from sagfree.solvers import solve_alm
 
 from .best_effort import with_least_sag

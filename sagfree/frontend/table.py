@@ -27,7 +27,7 @@ class Solver:
     prepare(problem, **options): builds what the solver needs per problem structure (Ipopt's
     compiled instance) before a batch, so worker processes inherit it, calling ``announce()`` before
     a noticeable wait; precompile(problem, **options): starts that work in the background (a study
-    starts it for every solver before the first one runs); warm_options: options of
+    starts it for all its solvers after its first warm-up); warm_options: options of
     the untimed warm-up solve (frontend.warm) that differ from the batch's; uses_stiffness: its
     answer depends on the stiffness mode (naive and the predecessor keep p0's stiffness).
     """
