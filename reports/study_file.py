@@ -1,5 +1,6 @@
 """Studies declared in a TOML file: ``sagfree study STUDY.toml`` (the same report as ``run_study`` +
-``write_report``, whose arguments the file's keys are one to one).
+``write_report``, whose arguments the file's keys are one to one; ``[sizes]``, ``experiments`` and
+``derivatives`` are the functions of ``reports.sections``, ``intro`` a paragraph before the tables).
 
     title = "2d-average against 4d"          # the report's title (default: the file name)
     out = "curvature-study"                   # output directory (default: the file name's stem)
