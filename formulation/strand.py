@@ -16,7 +16,8 @@ class Strand:
     """One groomed strand, SI units.
 
     points: (n, 3) vertex positions in m, n >= 3, vertex 0 is the root.
-    radius (m), youngs_modulus E (Pa), shear_modulus G (Pa), density (kg/m^3): positive, finite.
+    radius (m), youngs_modulus E (Pa), shear_modulus G (Pa), density (kg/m^3): positive, finite; the
+        radius at most MAX_RADIUS_PER_EDGE times any edge length (a thin rod).
     theta: (n-1,) material angles of the edges (rad) relative to the Bishop reference frame;
         None = 0 (untwisted input). th = pi on alternate edges gives "flipped frames".
     root: "clamped" (x_0, x_1, th_0 prescribed) or "pinned" (x_0 prescribed).
@@ -35,6 +36,7 @@ class Strand:
         self.points = _validated_points(points)
         n = len(self.points)
         self.radius = _positive("radius", radius)
+        _check_thin(self.points, self.radius)
         self.youngs_modulus = _positive("youngs_modulus", youngs_modulus)
         self.shear_modulus = _positive("shear_modulus", shear_modulus)
         self.density = _positive("density", density)
@@ -118,6 +120,30 @@ class Strand:
                 f"E={self.youngs_modulus:.3g} Pa, G={self.shear_modulus:.3g} Pa, root={self.root!r}"
                 f"{f', tip={self.tip!r}' if self.tip else ''}{f', pins={self.pins.tolist()}' if self.pins.size else ''}"
                 f"{', loads' if self.loads is not None else ''})")
+
+
+#: A strand whose radius exceeds this many times one of its edge lengths is refused (_check_thin).
+MAX_RADIUS_PER_EDGE = 10.0
+
+
+def _check_thin(points: np.ndarray, radius: float) -> None:
+    """DER models thin rods: refuse a radius above MAX_RADIUS_PER_EDGE edge lengths, naming the edge.
+
+    Such a strand is almost always a unit mix-up (a cyHair thickness of 1 in a cm file is a 5 mm
+    radius on 0.02 mm edges, 250x), and its optimization crawled to `max_iterations` (360
+    Gauss-Newton steps for a 1 mm, 50-vertex strand of radius 5 mm). Radii of a few edge lengths (a
+    2000-vertex hair, 1.4x) are kept: the model is coarse there but solvable.
+    """
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    worst = int(np.argmin(lengths))
+    if radius > MAX_RADIUS_PER_EDGE * lengths[worst]:
+        with np.errstate(over="ignore", divide="ignore"):
+            ratio = radius / lengths[worst]
+        raise ValueError(
+            f"radius {radius:g} m is {ratio:.3g} times the length of edge {worst} (vertices {worst}-"
+            f"{worst + 1}, {lengths[worst]:.3g} m): not a thin rod (sagfree refuses a radius above "
+            f"{MAX_RADIUS_PER_EDGE:g} edge lengths); check the units of the radius or thickness, or resample "
+            "the strand with fewer vertices")
 
 
 class InvalidStrand:

@@ -42,3 +42,15 @@ def test_lumped_masses_sum_to_strand_mass():
     s = sagfree.Strand(line(7), radius=3e-5, density=1100.0)
     assert s.vertex_masses.sum() == pytest.approx(1100.0 * np.pi * 3e-5**2 * 0.1, rel=1e-12)
     assert s.length == pytest.approx(0.1)
+
+
+def test_a_radius_far_above_the_edge_lengths_is_refused_naming_the_edge():
+    """A 1 mm, 50-vertex strand with a 5 mm radius (a unit mix-up) is not a thin rod; a 2000-vertex
+    hair whose radius is 1.4 edge lengths is kept."""
+    x = np.linspace(0.0, 1e-3, 50)
+    points = np.column_stack([x, 0 * x, 1e-4 * np.sin(3000 * x)])
+    with pytest.raises(ValueError, match=r"radius 0.005 m is .* times the length of edge \d+ .*not a thin rod"):
+        sagfree.Strand(points, radius=5e-3)
+    assert sagfree.Strand(points, radius=2e-5).radius == 2e-5
+    hair = sagfree.scenes.groom(1, 2000, seed=0)[0]
+    assert hair.radius > hair.edge_lengths.min()
