@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sagfree.linalg.band import add_vertex_blocks
+from sagfree.linalg.band import add_vertex_blocks, quadratic_form
 from sagfree.linalg.cholesky import band_cholesky, band_solve
 
 from . import dofs
@@ -246,14 +246,6 @@ def generalized_masses(problem: Problem) -> np.ndarray:
     return problem.dof_masses
 
 
-def _quadratic_form(band: np.ndarray, d: np.ndarray) -> float:
-    """d^T K d for K in lower band storage."""
-    value = band[0] @ (d * d)
-    for k in range(1, band.shape[0]):
-        value += 2.0 * band[k, : d.size - k] @ (d[k:] * d[: d.size - k])
-    return float(value)
-
-
 def _max_turn(frames: Frames, q: np.ndarray) -> float:
     """Largest angle (rad) between the tangents of q and those of the frames."""
     tangents = unit(np.diff(dofs.positions(q), axis=0))
@@ -313,7 +305,7 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
                               f"(residual {residual:.2e})")
             return q, record
         if alpha == 1.0:  # the quadratic model held over the full step: how well?
-            predicted = -(g @ d + 0.5 * _quadratic_form(band, d))
+            predicted = -(g @ d + 0.5 * quadratic_form(band, d))
             resolvable = predicted > 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
             ratio = (phi - phi_trial) / predicted if resolvable else 1.0
         else:

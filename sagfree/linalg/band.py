@@ -78,6 +78,17 @@ def matvec(band, border, corner, x, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def quadratic_form(band, d):  # pragma: no cover - compiled
+    """d^T K d for K in lower band storage (band[k, j] = K[j + k, j])."""
+    n, value = d.size, 0.0
+    for j in range(n):
+        value += band[0, j] * d[j] * d[j]
+        for k in range(1, min(band.shape[0], n - j)):
+            value += 2.0 * band[k, j] * d[j + k] * d[j]
+    return value
+
+
+@numba.njit(cache=True)
 def gershgorin_bound(band, border, corner):  # pragma: no cover - compiled
     """An upper bound of the largest eigenvalue of H: the largest absolute row sum."""
     w1, nb = band.shape
