@@ -44,8 +44,8 @@ from sagfree.contract.optimality import KKT_TOL, TOL, kkt_optimality
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.compiled import compile_library, generated_c, start_compiling
 from sagfree.formulation.problem import Problem
-from sagfree.linalg import timing
 from sagfree.formulation.symbolic import SymbolicNLP, structure_key
+from sagfree.linalg import timing
 
 #: Ipopt return status -> Result status (anything else is "failed")
 RETURN_STATUS = {
@@ -97,22 +97,28 @@ def _solver(problem: Problem, options: dict, model: str) -> tuple[ca.Function, S
     if key not in _SOLVERS:
         if len(_SOLVERS) >= 16:
             _SOLVERS.pop(next(iter(_SOLVERS)))
-        settings = {"ipopt": options, "print_time": False, "error_on_fail": False}
-        solver = ca.nlpsol("sagfree_ipopt", "ipopt",
-                           {"x": nlp.p, "p": nlp.data, "f": nlp.objective, "g": nlp.constraint}, settings)
-        if model == "compiled":
-            solver = _compiled(solver, nlp, settings)
-        _SOLVERS[key] = solver
+        solver = _interpreted(nlp, options)
+        _SOLVERS[key] = _compiled(solver, nlp, options) if model == "compiled" else solver
     return _SOLVERS[key], nlp
 
 
-def _compiled(solver: ca.Function, nlp: SymbolicNLP, settings: dict) -> ca.Function:
+def _settings(options: dict) -> dict:
+    return {"ipopt": options, "print_time": False, "error_on_fail": False}
+
+
+def _interpreted(nlp: SymbolicNLP, options: dict) -> ca.Function:
+    """Ipopt on the NLP's CasADi expressions (evaluated by CasADi's virtual machine)."""
+    return ca.nlpsol("sagfree_ipopt", "ipopt", {"x": nlp.p, "p": nlp.data, "f": nlp.objective,
+                                                "g": nlp.constraint}, _settings(options))
+
+
+def _compiled(solver: ca.Function, nlp: SymbolicNLP, options: dict) -> ca.Function:
     """The same Ipopt instance with its NLP functions compiled to C (or ``solver`` itself, after a
     one-time warning, when no compiler works)."""
     global _warned
     try:
         library = compile_library(_nlp_source(solver, nlp), "ipopt_nlp", "-O1")
-        return ca.nlpsol("sagfree_ipopt", "ipopt", str(library), settings)
+        return ca.nlpsol("sagfree_ipopt", "ipopt", str(library), _settings(options))
     except (OSError, RuntimeError) as exc:
         if not _warned:
             _warned = True
@@ -137,10 +143,7 @@ def precompile_ipopt(problem: Problem, tol: float = TOL, max_iterations: int = 3
     if model != "compiled" or _key(problem, options, model) in _SOLVERS:
         return
     nlp = SymbolicNLP.for_problem(problem)
-    solver = ca.nlpsol("sagfree_ipopt", "ipopt", {"x": nlp.p, "p": nlp.data, "f": nlp.objective,
-                                                  "g": nlp.constraint},
-                       {"ipopt": options, "print_time": False, "error_on_fail": False})
-    start_compiling(_nlp_source(solver, nlp), "ipopt_nlp", "-O1")
+    start_compiling(_nlp_source(_interpreted(nlp, options), nlp), "ipopt_nlp", "-O1")
 
 
 def _key(problem: Problem, options: dict, model: str) -> tuple:

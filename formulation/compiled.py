@@ -77,45 +77,63 @@ def _source(functions: list[ca.Function]) -> str:
 
 @dataclass
 class _Build:
-    """A compiler run started in the background by this process (start_compiling)."""
+    """A compiler run started by this process: ``start_compiling`` in the background, or
+    ``compile_library`` in the foreground (which waits for it at once)."""
 
-    pid: int
     process: subprocess.Popen
     directory: tempfile.TemporaryDirectory
     built: Path
     library: Path
 
+    def finish(self) -> Path:
+        """Wait for the compiler and move the library into the cache (atomic: concurrent processes
+        never load a half-written file); OSError with the compiler's messages if it failed."""
+        try:
+            try:
+                _, errors = self.process.communicate(timeout=600)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                raise OSError(f"{os.environ.get('CC', 'cc')} took over 600 s") from None
+            if self.process.returncode != 0:
+                raise OSError(f"{os.environ.get('CC', 'cc')} failed: {errors.strip()[-2000:]}")
+            os.replace(self.built, self.library)
+        finally:
+            self.directory.cleanup()
+        return self.library
 
-#: library path -> its background build
-_BUILDS: dict[Path, _Build] = {}
+
+#: (library path, process id) -> its build; keyed by process so that a forked child never waits for,
+#: nor cleans up after, a compiler its parent started
+_BUILDS: dict[tuple[Path, int], _Build] = {}
 
 
 def _library(source: str, stem: str) -> Path:
     return cache_dir() / f"{stem}_{hashlib.sha256(source.encode()).hexdigest()[:24]}.so"
 
 
-def start_compiling(source: str, stem: str = "stencils", optimization: str = "-O2") -> None:
-    """Start building the library of ``source`` in the background (a compiler process at lower
-    priority, no thread), so that it overlaps other work (``builds_paused`` stops it during timed
-    batches); ``compile_library`` of the same source then waits for it. A no-op if the library is
-    cached or already being built."""
+def start_compiling(source: str, stem: str = "stencils", optimization: str = "-O2", background: bool = True) -> None:
+    """Start building the library of ``source`` (a compiler process, no thread); in the
+    ``background`` at lower priority, so that it overlaps other work (``builds_paused`` stops it
+    during timed batches). ``compile_library`` of the same source then waits for it. A no-op if the
+    library is cached or this process is already building it."""
     library = _library(source, stem)
-    if library.exists() or library in _BUILDS:
+    if library.exists() or (library, os.getpid()) in _BUILDS:
         return
     library.parent.mkdir(parents=True, exist_ok=True)
     directory = tempfile.TemporaryDirectory(dir=library.parent)
     c_file, built = Path(directory.name, "generated.c"), Path(directory.name, "generated.so")
     c_file.write_text(source)
-    process = subprocess.Popen(_command(optimization, built, c_file), stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.nice(10))
-    _BUILDS[library] = _Build(os.getpid(), process, directory, built, library)
+    command = [os.environ.get("CC", "cc"), optimization, "-fPIC", "-shared", "-o", str(built), str(c_file), "-lm"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=(lambda: os.nice(10)) if background else None)
+    _BUILDS[library, os.getpid()] = _Build(process, directory, built, library)
 
 
 @contextlib.contextmanager
 def builds_paused():
     """Background builds of this process stopped (SIGSTOP) inside, continued after: a timed batch
     must not share the cores with a compiler, or its times depend on whether this was a first run."""
-    running = [b.process for b in _BUILDS.values() if b.pid == os.getpid() and b.process.poll() is None]
+    running = [b.process for (_, pid), b in _BUILDS.items() if pid == os.getpid() and b.process.poll() is None]
     for process in running:
         process.send_signal(signal.SIGSTOP)
     try:
@@ -126,37 +144,12 @@ def builds_paused():
                 process.send_signal(signal.SIGCONT)
 
 
-def _command(optimization: str, built: Path, c_file: Path) -> list[str]:
-    return [os.environ.get("CC", "cc"), optimization, "-fPIC", "-shared", "-o", str(built), str(c_file), "-lm"]
-
-
 def compile_library(source: str, stem: str = "stencils", optimization: str = "-O2") -> Path:
     """Build (or reuse) the shared library for the C ``source``, cached as ``{stem}_{hash}.so``
-    (waiting for a build ``start_compiling`` began in this process); raises OSError/CalledProcessError."""
-    library = _library(source, stem)
-    build = _BUILDS.get(library)
-    if build is not None and build.pid == os.getpid():  # a forked child neither waits for nor touches it
-        del _BUILDS[library]
-        try:
-            _, errors = build.process.communicate(timeout=600)
-            if build.process.returncode == 0:
-                os.replace(build.built, library)
-        finally:
-            build.directory.cleanup()
-        if build.process.returncode != 0:
-            raise OSError(f"{os.environ.get('CC', 'cc')} failed: {errors.strip()[-2000:]}")
-    if library.exists():
-        return library
-    library.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-        c_file = Path(tmp, "generated.c")
-        c_file.write_text(source)
-        built = Path(tmp, "generated.so")
-        run = subprocess.run(_command(optimization, built, c_file), capture_output=True, text=True, timeout=600)
-        if run.returncode != 0:
-            raise OSError(f"{os.environ.get('CC', 'cc')} failed: {run.stderr.strip()[-2000:]}")
-        os.replace(built, library)  # atomic: concurrent processes never load a half-written file
-    return library
+    (waiting for a build ``start_compiling`` began in this process); raises OSError."""
+    start_compiling(source, stem, optimization, background=False)
+    build = _BUILDS.pop((_library(source, stem), os.getpid()), None)
+    return build.finish() if build is not None else _library(source, stem)
 
 
 _warned = False

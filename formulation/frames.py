@@ -104,16 +104,22 @@ def project_director(first_tangent: np.ndarray, director: np.ndarray) -> np.ndar
 
 
 @numba.njit(cache=True)
+def _transport(t_from, t_to, v):  # pragma: no cover - compiled
+    """P(t_from -> t_to) v, the parallel transport of the module docstring (compiled)."""
+    b = np.cross(t_from, t_to)
+    c = t_from @ t_to
+    return c * v + np.cross(b, v) + b * (b @ v) / (1.0 + c)
+
+
+@numba.njit(cache=True)
 def _transport_along(tangents: np.ndarray, a1_first: np.ndarray) -> np.ndarray:  # pragma: no cover
     """Sequential space-parallel transport of a1 along the edges (compiled loop)."""
     m = tangents.shape[0]
     a1 = np.empty((m, 3))
     a1[0] = a1_first
     for j in range(1, m):
-        tf, tt, v = tangents[j - 1], tangents[j], a1[j - 1]
-        b = np.cross(tf, tt)
-        c = tf @ tt
-        a1[j] = c * v + np.cross(b, v) + b * (b @ v) / (1.0 + c)
+        tt = tangents[j]
+        a1[j] = _transport(tangents[j - 1], tt, a1[j - 1])
         a1[j] -= (a1[j] @ tt) * tt  # remove round-off drift off the tangent
         a1[j] /= np.sqrt(a1[j] @ a1[j])
     return a1
@@ -145,13 +151,6 @@ def transport_frames(frames: Frames, points: np.ndarray) -> Frames:
     tangents, a1, twist = _transported(np.ascontiguousarray(points, dtype=float), frames.tangents, frames.a1,
                                        frames.reference_twist)
     return Frames(tangents, a1, twist)
-
-
-@numba.njit(cache=True)
-def _transport(t_from, t_to, v):  # pragma: no cover - compiled
-    b = np.cross(t_from, t_to)
-    c = t_from @ t_to
-    return c * v + np.cross(b, v) + b * (b @ v) / (1.0 + c)
 
 
 @numba.njit(cache=True)

@@ -437,10 +437,7 @@ class Problem:
             supports = self.check_parameters(p)[self.layout.blocks[CONTACT_BLOCK]].reshape(self.contacts.count, -1)
             if np.any(supports > 0):
                 return self._stability_on_bodies(p, np.flatnonzero(np.any(supports > 0, axis=1)), vector)
-        full = self.hessian_band(p, q, frames)
-        if self.bodies and not (q is None and frames is None):
-            add_vertex_blocks(full, self.contact_hessian(q))
-        band = self.free_band(full)
+        band = self.free_band(self.static_hessian_band(p, q, frames))
         scale = 1.0 / np.sqrt(self.dof_masses[self.free_index])
         size = band.shape[1]
         scaled = np.zeros_like(band)
@@ -460,9 +457,21 @@ class Problem:
         free[self.strand.prescribed_vertices] = False
         return free
 
-    def contact_hessian(self, q) -> np.ndarray:
-        """(n, 3, 3) Hessian of the simulation's contact penalty at the state q (contact module)."""
-        return contact_penalty(self.contacts, dofs.positions(self._state(q)), self.free_vertices)[2]
+    def static_hessian_band(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
+        """``hessian_band`` plus, with bodies and a state q, the Hessian of the simulation's contact
+        penalty there (contact module): the curvature of the static potential whose minimum the
+        simulation and the best effort settle in (at q* the penalty is zero, and the supports of p
+        hold the strand instead)."""
+        band = self.hessian_band(p, q, frames)
+        if self.bodies and q is not None:
+            add_vertex_blocks(band, contact_penalty(self.contacts, dofs.positions(self._state(q)),
+                                                    self.free_vertices)[2])
+        return band
+
+    def normal_forces(self, p) -> np.ndarray:
+        """(K,) the push of each contact's support along its body's normal at q* (N)."""
+        forces = self.contact_forces(p)[self.contacts.vertices]
+        return np.einsum("kd,kd->k", forces, self.contacts.normals)
 
     def _stability_on_bodies(self, p, resting: np.ndarray, vector: bool):
         """``stability`` at q* with the contacts ``resting`` (indices into self.contacts, support > 0).
@@ -477,7 +486,7 @@ class Problem:
         order so the reduced Hessian stays banded."""
         vertices = self.contacts.vertices[resting]
         forces = self.contact_forces(p)[vertices]
-        normal_force = np.einsum("kd,kd->k", forces, self.contacts.normals[resting])
+        normal_force = self.normal_forces(p)[resting]
         slip = np.abs(np.einsum("kjd,kd->kj", self.contacts.tangents[resting], forces)).sum(axis=1)
         sticks = (self.friction > 0) & (slip < self.friction * normal_force * (1 - 1e-9))
         positions = dofs.position_index(self.n_vertices)[vertices]               # (m, 3)
@@ -561,20 +570,26 @@ def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
                              "(kg/m^3) and coordinates (m)")
 
 
-#: principal_band_gather maps of the free DOFs by (size, free DOFs): the strands of a groom share a few
+def _memo(cache: dict, key, build):
+    """cache[key], made by build() when missing; beyond 16 entries the oldest goes (the strands of a
+    groom share a few structures)."""
+    if key not in cache:
+        if len(cache) >= 16:
+            cache.pop(next(iter(cache)))
+        cache[key] = build()
+    return cache[key]
+
+
+#: principal_band_gather maps of the free DOFs by (size, free DOFs)
 _FREE_GATHERS: dict = {}
 
 
 def _free_gather(free_index: np.ndarray, size: int):
-    key = (size, free_index.tobytes())
-    if key not in _FREE_GATHERS:
-        if len(_FREE_GATHERS) >= 16:
-            _FREE_GATHERS.pop(next(iter(_FREE_GATHERS)))
-        _FREE_GATHERS[key] = principal_band_gather(free_index, size, HALF_BANDWIDTH)
-    return _FREE_GATHERS[key]
+    return _memo(_FREE_GATHERS, (size, free_index.tobytes()),
+                 lambda: principal_band_gather(free_index, size, HALF_BANDWIDTH))
 
 
-#: _band_scatter results by (size, stencil DOF indices): the strands of a groom share a few
+#: _band_scatter results by (size, stencil DOF indices)
 _BAND_SCATTERS: dict = {}
 
 
@@ -583,11 +598,7 @@ def _band_scatter(stencil_indices: list[np.ndarray], size: int):
     into (HALF_BANDWIDTH + 1, size) band storage of every kept entry (~0.15 ms on a 100-vertex
     strand, cached)."""
     key = (size, *(index.shape for index in stencil_indices), *(index.tobytes() for index in stencil_indices))
-    if key not in _BAND_SCATTERS:
-        if len(_BAND_SCATTERS) >= 16:
-            _BAND_SCATTERS.pop(next(iter(_BAND_SCATTERS)))
-        _BAND_SCATTERS[key] = _build_band_scatter(stencil_indices, size)
-    return _BAND_SCATTERS[key]
+    return _memo(_BAND_SCATTERS, key, lambda: _build_band_scatter(stencil_indices, size))
 
 
 def _build_band_scatter(stencil_indices: list[np.ndarray], size: int):

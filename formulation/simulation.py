@@ -204,9 +204,7 @@ class IncrementalPotential:
         return g
 
     def hessian_band(self, q: np.ndarray) -> np.ndarray:
-        band = self.problem.hessian_band(self.p, q, self.frames)
-        if self.problem.bodies:
-            add_vertex_blocks(band, self._contact(q)[2])
+        band = self.problem.static_hessian_band(self.p, q, self.frames)
         if self.friction is not None:
             add_vertex_blocks(band, self.friction.evaluate(dofs.positions(q), self.problem.friction)[2])
         if self.weight is not None:
@@ -377,10 +375,8 @@ def _friction(problem: Problem, p: np.ndarray, q: np.ndarray, dt: float, first: 
         return None
     held = None
     if first:
-        forces = problem.contact_forces(p)
         held = np.zeros(problem.n_vertices)
-        held[problem.contacts.vertices] = np.einsum("kd,kd->k", forces[problem.contacts.vertices],
-                                                    problem.contacts.normals)
+        held[problem.contacts.vertices] = problem.normal_forces(p)
     return lagged_friction(problem.contacts, dofs.positions(q), problem.free_vertices,
                            FRICTION_CREEP * problem.strand.length * dt, problem.friction, held)
 

@@ -17,8 +17,6 @@ from sagfree.frontend.table import SOLVERS
 from .study_file import StudyRun, load_study_file, run_study_file
 
 DEMO_SOLVERS = tuple(SOLVERS)
-#: the demo's main scene (the study file's name for the default groom)
-SCENE = "default groom"
 
 
 def demo_study_path():

@@ -161,47 +161,13 @@ def run_all(steps: int = 300, dt: float = 1e-3, jobs: int | None = None):
     return tuple(map_strands(_run, [("frames",), ("slerp",), ("modes",)], (steps, dt), jobs, on_crash=_crashed))
 
 
-def draw(frames: list[ModelRun], slerps: list[ModelRun], modes: list[StiffnessModeRun], path) -> None:
-    """The experiments' figure: displacement over time of IV.A and IV.B, bend multiplier along the
-    strand of V (S Figs. 2-4 as curves)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import matplotlib.ticker
-
-    fig, axes = plt.subplots(1, 3, figsize=(13.5, 3.6))
-    styles = [dict(linestyle="-", linewidth=3.0, alpha=0.5), dict(linestyle="--", linewidth=2.0),
-              dict(linestyle="-.", linewidth=1.5), dict(linestyle=":", linewidth=1.5)]
-    for ax, runs, title in ((axes[0], frames, "IV.A: 2d-average vs 4d, E 1e10 Pa"),
-                            (axes[1], slerps, "IV.B: 2d-slerp vs 4d, flipped frames")):
-        for run, style in zip(runs, styles):
-            length = SCENES[run.scene]().length
-            label = f"{run.curvature}, {run.scene}" + (f", E {run.youngs_modulus:.0e} Pa" if runs is slerps else "")
-            ax.plot(run.simulation.times, run.simulation.displacement / length, label=label, **style)
-        ax.set(xlabel="time (s)", ylabel="largest displacement / L", title=title)
-        ax.legend(fontsize=6)
-    for run in modes:
-        bend = np.asarray(run.result.physical["bend_modulus"])
-        multiplier = bend * run.bend_max / bend.max()  # bend_max is max(bend / E)
-        axes[2].plot(np.linspace(0.0, 1.0, bend.size + 2)[1:-1], multiplier, marker=".", markersize=3,
-                     label=f"{run.mode}: max {run.bend_max:.3g}, root response {run.root_response:.2g} L")
-    axes[2].set(yscale="log", xlabel="interior vertex along the strand (root at 0)", ylabel="bend modulus / E",
-                title="V: naive, per strand, per element, E 1e9 Pa")
-    axes[2].yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-    axes[2].yaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
-    axes[2].legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-
-
 def document_blocks(steps: int = 300, dt: float = 1e-3, directory=None) -> list:
     """The three experiments run and tabulated, as report blocks (document module); with a report
     ``directory``, also their figure (figures/experiments.png)."""
     from pathlib import Path
 
     from .document import Figure, Heading, Paragraph, Table
+    from .figures import experiments_figure
 
     header = ["scene", "curvature", "E (Pa)", "bend energy of an arc (J)", "sag / L", "final / L",
               "static sag / L", "Newton per step", "converged"]
@@ -214,7 +180,7 @@ def document_blocks(steps: int = 300, dt: float = 1e-3, directory=None) -> list:
     figure = []
     if directory is not None:
         (Path(directory) / "figures").mkdir(parents=True, exist_ok=True)
-        draw(frames, slerps, modes, Path(directory) / "figures" / "experiments.png")
+        experiments_figure(frames, slerps, modes, Path(directory) / "figures" / "experiments.png")
         figure = [Figure("figures/experiments.png", (
             "The supplement's experiments on `horizontal` (30 vertices, 10 cm). Left and middle: the largest "
             "vertex displacement over the strand length against time (s), from rest at the groomed shape with "

@@ -18,13 +18,12 @@ import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
+from sagfree.frontend.table import SOLVERS  # noqa: E402
+
 from .benchmarking import PROFILE_SHIFTS, common_count, comparable_cases, costs, performance_profile  # noqa: E402
 from .study import Study  # noqa: E402
 
 DPI = 130
-#: Solvers whose parameters include stiffness (naive and penalty-gn keep p0's).
-STIFFENING_SOLVERS = ("asc", "ipopt", "osqp")
-MAX_DRAWN = 200
 #: Sags below this (including exactly 0: Newton found nothing to correct) are drawn at it.
 SAG_FLOOR = 1e-14
 
@@ -40,6 +39,23 @@ def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
+
+
+def _band(ax, x: np.ndarray, rows: list, label: str, log: bool = False):
+    """The median of ``rows`` (one per strand) against x as a line, the 10-90% band shaded."""
+    low, middle, high = np.percentile(np.array(rows), [10, 50, 90], axis=0)
+    line, = (ax.semilogy if log else ax.plot)(x, middle, label=f"{label}, {len(rows)} strands")
+    if len(rows) > 1:
+        ax.fill_between(x, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
+
+
+def _plain_ticks(*axes) -> None:
+    """Plain numbers on log axes (2, 5, 10, not 2 x 10^0), no minor labels."""
+    for axis in axes:
+        if not isinstance(axis.get_major_locator(), matplotlib.ticker.FixedLocator):
+            axis.set_major_locator(matplotlib.ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
 
 
 def _scene_axes(count: int, width: float = 4.2, height: float = 3.0):
@@ -67,11 +83,8 @@ def convergence(study: Study, path: Path) -> Path:
             if not histories:
                 continue
             steps = max(len(h) for h in histories)
-            padded = np.array([np.r_[h, np.full(steps - len(h), h[-1])] for h in histories])
-            low, middle, high = np.percentile(padded, [10, 50, 90], axis=0)
-            line, = ax.semilogy(np.arange(steps), middle, label=f"{case.label}, {len(histories)} strands")
-            if len(histories) > 1:
-                ax.fill_between(np.arange(steps), low, high, color=line.get_color(), alpha=0.2, linewidth=0)
+            _band(ax, np.arange(steps), [np.r_[h, np.full(steps - len(h), h[-1])] for h in histories], case.label,
+                  log=True)
         ax.axhline(1e-8, color="gray", linestyle=":", linewidth=0.8)
         ax.set(title=scene, xlabel="primal step (own kind per solver)", ylabel="|c|_inf (unit-free)")
         ax.legend(fontsize=6)
@@ -89,8 +102,7 @@ def droop(study: Study, path: Path, solver: str = "asc") -> Path:
     from sagfree.formulation.problem import Problem
     from sagfree.formulation.simulation import equilibrium
 
-    scenes = [s for s in study.scenes if study.case(s, "naive", study.settings["modes"][0])
-              and study.case(s, solver, study.settings["modes"][0])][:3]
+    scenes = _droop_scenes(study, solver)
     fig, axes = plt.subplots(len(scenes), 2, figsize=(9.0, 3.6 * len(scenes)), squeeze=False, layout="constrained")
     drawn, options = [], study.settings.get("scene_options", {})
     for row, scene in enumerate(scenes):
@@ -124,6 +136,12 @@ def droop(study: Study, path: Path, solver: str = "asc") -> Path:
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
+
+
+def _droop_scenes(study: Study, solver: str = "asc") -> list[str]:
+    """The (first 3) scenes where ``droop`` has both naive and ``solver`` in the first mode."""
+    mode = study.settings["modes"][0]
+    return [s for s in study.scenes if study.case(s, "naive", mode) and study.case(s, solver, mode)][:3]
 
 
 def stability(study: Study, path: Path) -> Path:
@@ -170,21 +188,15 @@ def stiffening_profile(study: Study, path: Path) -> Path:
     for ax, scene in zip(axes, scenes):
         strands = study.scenes[scene]
         for case in study.cases:
-            if case.scene != scene or case.solver not in STIFFENING_SOLVERS:
-                continue
+            if case.scene != scene or not SOLVERS[case.solver].uses_stiffness:
+                continue  # naive and the predecessor keep p0's stiffness
             profiles = [stiffening_along_arclength(strands[k], r) for k, r in enumerate(case.results)
                         if r.status == "converged"]
-            if not profiles:
-                continue
-            low, middle, high = np.percentile(np.array(profiles), [10, 50, 90], axis=0)
-            line, = ax.plot(grid, middle, label=f"{case.label}, {len(profiles)} strands")
-            if len(profiles) > 1:
-                ax.fill_between(grid, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
+            if profiles:
+                _band(ax, grid, profiles, case.label)
         ax.axhline(1.0, color="gray", linestyle=":", linewidth=0.8)
         ax.set(title=scene, xlabel="arc length / L (root at 0)", ylabel="bend modulus / E", yscale="log")
-        ax.yaxis.set_major_locator(matplotlib.ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-        ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        _plain_ticks(ax.yaxis)
         ax.legend(fontsize=6)
     return _save(fig, path)
 
@@ -226,9 +238,7 @@ def time_against_size(study: Study, path: Path) -> Path:
     ax.set(xlabel="vertices per strand", ylabel="ms per strand (mean)", title="time against strand size")
     sizes = sorted({n for points in series.values() for n, _ in points})
     ax.xaxis.set_major_locator(matplotlib.ticker.FixedLocator(sizes))
-    for axis in (ax.xaxis, ax.yaxis):  # plain numbers, no 3 x 10^1 minor labels
-        axis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-        axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    _plain_ticks(ax.xaxis, ax.yaxis)
     ax.legend(fontsize=6)
     return _save(fig, path)
 
@@ -259,6 +269,34 @@ def performance_profiles(study: Study, path: Path) -> Path:
             ax.set(xscale="log", ylim=(0, 1.02), xlabel=f"tau: {kind} over the best solver's on the strand",
                    ylabel="share of strands within tau", title=f"{mode} stiffness: {kind}, {problems} strands")
             ax.legend(fontsize=7, loc="lower right")
+    return _save(fig, path)
+
+
+def experiments_figure(frames, slerps, modes, path: Path) -> Path:
+    """The supplement's experiments (reports.experiments runs): displacement over time of IV.A and
+    IV.B, bend multiplier along the strand of V (S Figs. 2-4 as curves)."""
+    from sagfree.scenes import flipped, horizontal
+
+    lengths = {"horizontal": horizontal().length, "flipped": flipped().length}
+    fig, axes = plt.subplots(1, 3, figsize=(13.5, 3.6))
+    styles = [dict(linestyle="-", linewidth=3.0, alpha=0.5), dict(linestyle="--", linewidth=2.0),
+              dict(linestyle="-.", linewidth=1.5), dict(linestyle=":", linewidth=1.5)]
+    for ax, runs, title in ((axes[0], frames, "IV.A: 2d-average vs 4d, E 1e10 Pa"),
+                            (axes[1], slerps, "IV.B: 2d-slerp vs 4d, flipped frames")):
+        for run, style in zip(runs, styles):
+            label = f"{run.curvature}, {run.scene}" + (f", E {run.youngs_modulus:.0e} Pa" if runs is slerps else "")
+            ax.plot(run.simulation.times, run.simulation.displacement / lengths[run.scene], label=label, **style)
+        ax.set(xlabel="time (s)", ylabel="largest displacement / L", title=title)
+        ax.legend(fontsize=6)
+    for run in modes:
+        bend = np.asarray(run.result.physical["bend_modulus"])
+        multiplier = bend * run.bend_max / bend.max()  # bend_max is max(bend / E)
+        axes[2].plot(np.linspace(0.0, 1.0, bend.size + 2)[1:-1], multiplier, marker=".", markersize=3,
+                     label=f"{run.mode}: max {run.bend_max:.3g}, root response {run.root_response:.2g} L")
+    axes[2].set(yscale="log", xlabel="interior vertex along the strand (root at 0)", ylabel="bend modulus / E",
+                title="V: naive, per strand, per element, E 1e9 Pa")
+    _plain_ticks(axes[2].yaxis)
+    axes[2].legend(fontsize=6)
     return _save(fig, path)
 
 
@@ -301,8 +339,7 @@ def draw_all(study: Study, directory: Path, sizes: Study | None = None) -> dict[
     for name, (function, _) in FIGURES.items():
         if (name == "sag" and not any(c.checks for c in study.cases)) or (name == "time" and sizes is None):
             continue
-        if name == "droop" and not any(study.case(s, "naive", study.settings["modes"][0]) and
-                                       study.case(s, "asc", study.settings["modes"][0]) for s in study.scenes):
+        if name == "droop" and not _droop_scenes(study):
             continue
         if name == "profiles" and not any(len(comparable_cases(study, c.scene, c.mode)) > 1 for c in study.cases):
             continue

@@ -1,10 +1,8 @@
-"""The optional sections of a study's report beyond its scenes x solvers tables (study files'
-``[sizes]``, ``experiments`` and ``derivatives`` keys; ``sagfree demo`` uses all three):
+"""Optional sections of a study's report beyond its scenes x solvers tables (study files' ``[sizes]``
+and ``derivatives`` keys; ``experiments`` is reports.experiments.document_blocks):
 
 - ``size_sweep``: the same kind of groom strands at several sizes, solved one after another in one
   process (time against strand size, drawn in the report's time figure);
-- ``experiment_blocks``: the supplement's experiments IV.A, IV.B and V (reports.experiments) with
-  their figure;
 - ``derivative_blocks``: the derivative verification as one line in the body, the table in an
   appendix and in ``derivatives.csv``.
 """
@@ -17,7 +15,6 @@ from sagfree.contract.result import status_summary
 from sagfree.formulation.verification import FD_TOLERANCE, HAND_TOLERANCE, verify
 from sagfree.scenes import groom
 
-from . import experiments
 from .document import Heading, Paragraph, Table
 from .study import Study, run_study
 
@@ -42,11 +39,6 @@ def size_sweep(strands: int, sizes, solvers, progress: bool = False) -> tuple[St
 
 def _mean_time(results) -> float:
     return sum(r.time for r in results) / max(len(results), 1)
-
-
-def experiment_blocks(directory: Path) -> list:
-    """The supplement's experiments, run, tabulated and drawn into ``directory``/figures."""
-    return experiments.document_blocks(directory=directory)
 
 
 DERIVATIVE_HEADER = ["term", "quantity", "variant", "AD vs hand", "AD vs FD", "pass"]

@@ -222,7 +222,7 @@ def run_study_file(path, out: str | None = None, jobs: int | None = None, progre
                    pdf: bool = True, spec: StudySpec | None = None) -> StudyRun:
     """Run the study of ``path`` (or the already loaded ``spec``) with its sections and write its
     report to ``out`` (default: the file's ``out``)."""
-    from . import sections
+    from . import experiments, sections
     from .document import Paragraph
     from .report import write_report
     from .study import run_study
@@ -240,7 +240,7 @@ def run_study_file(path, out: str | None = None, jobs: int | None = None, progre
         sweep, blocks = sections.size_sweep(spec.sizes["strands"], spec.sizes["vertices"], spec.sizes["solvers"])
         extra += blocks
     if spec.experiments:
-        extra += sections.experiment_blocks(directory)
+        extra += experiments.document_blocks(directory=directory)
     if spec.derivatives:
         body, appendix, passed, total = sections.derivative_blocks(directory)
         extra += body

@@ -210,6 +210,7 @@ def _report(args) -> int:
     from sagfree.reports.study import run_study
     from sagfree.reports.study_file import StudyRun
     from sagfree.scenes import load
+    from sagfree.scenes.catalog import SCENE_BODIES
 
     start = time.perf_counter()
     scenes = {name: load(name, args.units)[: args.max_strands] for name in
@@ -217,8 +218,6 @@ def _report(args) -> int:
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     solver_options = study_options(args.option, solvers)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
-    from sagfree.scenes.catalog import SCENE_BODIES
-
     scene_options = {name: {"bodies": list(SCENE_BODIES[name])} for name in scenes if name in SCENE_BODIES}
     study = run_study(scenes, solvers, modes, steps=args.steps, dt=args.dt, jobs=args.jobs,
                       progress=not args.quiet, scheduler=args.scheduler, solver_options=solver_options,
@@ -363,7 +362,8 @@ def parser() -> argparse.ArgumentParser:
                          description="Run the study a TOML file declares (scenes or strand files, solvers, "
                          "stiffness modes, curvature variants, solver options, strand subsets, simulation "
                          "checks; see sagfree/reports/study_file.py and the examples in studies/) and write "
-                         "its report. Exit code 1 if asc did not converge on a strand, 2 for a malformed file.")
+                         "its report. Exit code 1 if asc failed or hit a limit on a strand or a derivative check failed, 2 "
+                         "for a malformed file.")
     stu.add_argument("file", metavar="STUDY.toml", help="the study file")
     stu.add_argument("--out", default=None, help="output directory (default: the file's 'out', else its name)")
     stu.add_argument("--no-pdf", action="store_true", help="write report.md only")

@@ -42,7 +42,6 @@ import scipy.optimize
 from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import Equilibrium, equilibrium
-from sagfree.linalg.band import add_vertex_blocks
 from sagfree.linalg.cholesky import band_cholesky
 
 #: Model evaluations (static solves) the minimization may take: enough for the large early gains,
@@ -104,10 +103,7 @@ class StaticSag:
         if self.at is None or not np.array_equal(p, self.at):
             self._settle(p)
         state, free = self.state, problem.free_index
-        full = problem.hessian_band(p, state.q, state.frames)
-        if problem.bodies:  # the simulation's contact penalty holds the equilibrium too
-            add_vertex_blocks(full, problem.contact_hessian(state.q))
-        band = problem.free_band(full)
+        band = problem.free_band(problem.static_hessian_band(p, state.q, state.frames))
         factor, shift = band_cholesky(band), 0.0
         masses = problem.dof_masses[free]
         while factor is None:  # a saddle of E: shift by the mass metric, as Newton's damping does

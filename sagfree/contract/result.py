@@ -132,25 +132,20 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
     if status not in STATUSES:
         raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
     with timing.uncounted():  # after the solve: not part of its time, nor of its split
-        return _measured(problem, p, solver, status, message, iterations, time, history, floors, rest,
-                         setup_time)
-
-
-def _measured(problem, p, solver, status, message, iterations, time, history, floors, rest, setup_time):
-    p = np.asarray(p, dtype=float).copy()
-    eigenvalue = problem.stability(p) if rest is None else problem.stability(p, q=rest.q, frames=rest.frames)
-    stable = bool(eigenvalue > 0)
-    if status == "converged" and not stable:
-        message += (f"; the rest state is UNSTABLE (smallest eigenvalue {eigenvalue:.3g} s^-2): a push "
-                    "grows and the strand leaves q*")
-    contacts = problem.contact_forces(p)
-    load = problem.external_forces[dofs.position_index(problem.n_vertices)].sum(axis=0)
-    support = float(-contacts.sum(axis=0) @ load / (load @ load)) if load @ load > 0 else 0.0
-    return Result(solver, p, status, message, dict(iterations),
-                  float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
-                  problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
-                  time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
-                  float("nan") if rest is None else rest.relative_sag, contacts, support, float(setup_time))
+        p = np.asarray(p, dtype=float).copy()
+        eigenvalue = problem.stability(p) if rest is None else problem.stability(p, q=rest.q, frames=rest.frames)
+        stable = bool(eigenvalue > 0)
+        if status == "converged" and not stable:
+            message += (f"; the rest state is UNSTABLE (smallest eigenvalue {eigenvalue:.3g} s^-2): a push "
+                        "grows and the strand leaves q*")
+        contacts = problem.contact_forces(p)
+        load = problem.external_forces[dofs.position_index(problem.n_vertices)].sum(axis=0)
+        support = float(-contacts.sum(axis=0) @ load / (load @ load)) if load @ load > 0 else 0.0
+        return Result(solver, p, status, message, dict(iterations),
+                      float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
+                      problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
+                      time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
+                      float("nan") if rest is None else rest.relative_sag, contacts, support, float(setup_time))
 
 
 def status_counts(results: list[Result]) -> dict[str, int]:

@@ -87,17 +87,11 @@ def prepare(solver: str, strands, solver_options: dict | None = None, problem_op
     first strand of each size in ``strands``, in this process; ``say(text)`` before a noticeable
     wait. Never raises (as warm_up)."""
     entry = solver_entry(solver)
-    if entry.prepare is None:
-        return
-    options = {k: v for k, v in (solver_options or {}).items() if k != "p_start"}
-    for n, strand in {s.n_vertices: s for s in reversed(list(strands))}.items():
-        try:
-            problem = Problem(strand, **(problem_options or {}))
-            entry.prepare(problem, announce=partial(say, f"{solver}: building its model for {n}-vertex strands "
-                                                   "(compiling it on the first run only) ...") if say else None,
-                          **options)
-        except Exception:  # noqa: BLE001 - the batch reports real errors
-            pass
+    if entry.prepare is not None:
+        for n, problem in _one_per_size(strands, problem_options):
+            announce = partial(say, f"{solver}: building its model for {n}-vertex strands (compiling it on the "
+                                    "first run only) ...") if say else None
+            _quietly(entry.prepare, problem, announce=announce, **_structure_options(solver_options))
 
 
 def precompile(solver: str, strands, solver_options: dict | None = None,
@@ -105,14 +99,32 @@ def precompile(solver: str, strands, solver_options: dict | None = None,
     """Start the solver's per-structure compilation (Solver.precompile) for the first strand of
     each size in ``strands`` in the background; ``prepare`` later waits for it. Never raises."""
     entry = solver_entry(solver)
-    if entry.precompile is None:
-        return
-    options = {k: v for k, v in (solver_options or {}).items() if k != "p_start"}
-    for strand in {s.n_vertices: s for s in reversed(list(strands))}.values():
+    if entry.precompile is not None:
+        for _, problem in _one_per_size(strands, problem_options):
+            _quietly(entry.precompile, problem, **_structure_options(solver_options))
+
+
+def _one_per_size(strands, problem_options: dict | None):
+    """(n, Problem) of the first strand of each vertex count n (a strand the batch will reject is skipped)."""
+    for n, strand in {s.n_vertices: s for s in reversed(list(strands))}.items():
         try:
-            entry.precompile(Problem(strand, **(problem_options or {})), **options)
+            problem = Problem(strand, **(problem_options or {}))
         except Exception:  # noqa: BLE001 - the batch reports real errors
-            pass
+            continue
+        yield n, problem
+
+
+def _structure_options(solver_options: dict | None) -> dict:
+    """The solver options that matter before a solve (a start point does not)."""
+    return {k: v for k, v in (solver_options or {}).items() if k != "p_start"}
+
+
+def _quietly(function, *args, **kwargs) -> None:
+    """Preparation is best effort: the batch reports real errors."""
+    try:
+        function(*args, **kwargs)
+    except Exception:  # noqa: BLE001
+        pass
 
 
 def warm_up(solver: str, solver_options: dict | None = None, problem_options: dict | None = None) -> float:
@@ -124,11 +136,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
         return 0.0
     start = time.perf_counter()
     _WARM.add(key)
-    try:
-        problem = _warm_strand(problem_options or {})
-        entry = solver_entry(solver)
-        options = {k: v for k, v in (solver_options or {}).items() if k != "p_start"}
-        solve_stabilized(entry.function, problem, {**options, **entry.warm_options})
-    except Exception:  # noqa: BLE001 - warming is best effort; the batch reports real errors
-        pass
+    entry = solver_entry(solver)
+    _quietly(lambda: solve_stabilized(entry.function, _warm_strand(problem_options or {}),
+                                      {**_structure_options(solver_options), **entry.warm_options}))
     return time.perf_counter() - start
