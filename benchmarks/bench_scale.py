@@ -1,14 +1,17 @@
 """Scaling study: total time against the number of strands, time per strand against strand size, peak
 memory, and the ratio to Ipopt and OSQP-SQP measured in the same run.
 
-    python benchmarks/bench_scale.py [--strands 100,1000,10000] [--vertices 25,50,100,200,400]
-                                     [--size-strands 40] [--baseline-strands 3] [--jobs N]
+    python benchmarks/bench_scale.py [--strands 100,1000,10000] [--vertices 25,100,400,1000,2000]
+                                     [--size-strands 10] [--baseline-vertices 100]
+                                     [--baseline-strands 5] [--jobs N]
 
 1. groom(N, 100 vertices) for each N, all cores: wall time, per-strand time, peak resident memory of
-   the whole process tree (this process and its workers, sampled every 50 ms from /proc), statuses;
-2. groom(size_strands, n) for each n, all cores: wall time per strand and per vertex;
-3. the first ``baseline_strands`` strands of groom(., n) for the two smallest n, one process each:
-   asc, ipopt and osqp per strand, and the baselines' time over ours (in this run).
+   the whole process tree (this process and its workers, sampled every 50 ms from /proc), statuses
+   (the 10K row is the memory goal: at most 1 GB);
+2. groom(size_strands, n) for each n, all cores: wall time per strand and per vertex (flat = linear);
+3. the first ``baseline_strands`` strands of groom(., n) for each baseline size, one process each:
+   asc, ipopt (its NLP compiled to C, formulation.compiled; compiling is setup, not time) and
+   osqp per strand, and the baselines' time over ours (in this run).
 """
 from __future__ import annotations
 
@@ -98,10 +101,12 @@ def baselines_table(sizes, count: int) -> None:
         strands = sagfree.scenes.groom(count, n, seed=0)
         reference = None
         for solver in ("asc", "ipopt", "osqp"):
+            sagfree.optimize(strands[:1], solver=solver, jobs=1)  # compile / load its model first
             results = sagfree.optimize(strands, solver=solver, jobs=1)
             t = np.mean([r.time for r in results])
             reference = reference or t
-            statuses = {s: sum(r.status == s for r in results) for s in ("converged", "max_iterations", "failed")}
+            statuses = {s: sum(r.status == s for r in results) for s in ("converged", "max_iterations", "failed",
+                                                                          "infeasible")}
             print(f"   {n:8d} {solver:>8} {1e3 * t:10.1f} {t / reference:8.1f}  "
                   f"{', '.join(f'{k} {v}' for k, v in statuses.items() if v)}", flush=True)
 
@@ -109,16 +114,17 @@ def baselines_table(sizes, count: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--strands", default="100,1000,10000")
-    parser.add_argument("--vertices", default="25,50,100,200,400")
-    parser.add_argument("--size-strands", type=int, default=40)
-    parser.add_argument("--baseline-strands", type=int, default=3)
+    parser.add_argument("--vertices", default="25,100,400,1000,2000")
+    parser.add_argument("--size-strands", type=int, default=10)
+    parser.add_argument("--baseline-vertices", default="100")
+    parser.add_argument("--baseline-strands", type=int, default=5)
     parser.add_argument("--jobs", type=int, default=os.cpu_count())
     args = parser.parse_args()
     sagfree.optimize(sagfree.scenes.groom(2, 25, seed=0), jobs=1)  # compile / load the model first
     strands_table([int(x) for x in args.strands.split(",")], args.jobs)
     sizes = [int(x) for x in args.vertices.split(",")]
     sizes_table(sizes, args.size_strands, args.jobs)
-    baselines_table(sizes[:2], args.baseline_strands)
+    baselines_table([int(x) for x in args.baseline_vertices.split(",")], args.baseline_strands)
 
 
 if __name__ == "__main__":

@@ -1,22 +1,31 @@
-"""Our solver at groom scale, its growth with strand size, and the preconditioner ablation.
+"""Our solver at groom scale, side by side with the code before a change, its growth with strand
+size, and the preconditioner ablation.
 
-    python benchmarks/bench_solver.py [--strands 1900] [--vertices 100] [--jobs N] [--ablation 20]
+    python benchmarks/bench_solver.py [--strands 1900] [--vertices 100] [--jobs N] [--before REV]
+                                      [--sizes 25,100,400,1000,2000] [--size-strands 10] [--ablation 10]
 
 Prints three tables, all measured in this run:
-1. the whole groom on all cores: wall time, mean time per strand, statuses and iteration counts,
-   with the ratio to the predecessor paper's published 11.2 s for 1.9K strands x 100 vertices
-   (measured there on a larger CPU; a reference figure, not a run on this machine);
-2. time per strand against strand size (25 to 400 vertices) for the same physical strands, the
-   time per vertex (flat = linear growth) and the factorizations per Gauss-Newton step (flat = the
-   QPs do not need more active-set changes on longer strands);
+1. the whole groom (``groom(1900, 100, seed=0)``, element stiffness, default boxes, stability on) on
+   all cores after a warm-up batch: wall time, strands converged and stable, the ratio to the
+   predecessor paper's published 11.2 s for 1.9K strands x 100 vertices (measured there on a larger
+   CPU; a reference figure, not a run on this machine) and to the same groom solved by the code at
+   git revision ``--before`` (checked out into a temporary worktree and run in a subprocess right
+   before ours, same machine, same cores; skipped outside a git checkout or with --before "");
+2. time per strand against strand size for the same physical strands, one core: the time per
+   vertex (flat = linear growth), Gauss-Newton steps, factorizations per step, converged and stable;
 3. the preconditioner ablation on a subset: active-set Cholesky vs Jacobi vs none, with CG
    iterations, expansions, factorizations, time and the ratio to the active-set Cholesky.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -34,16 +43,61 @@ def summary(results) -> dict:
     return dict(statuses=statuses, counts=counts, solve_time=np.array([r.time for r in results]))
 
 
-def groom_table(strands: int, vertices: int, jobs: int) -> None:
+#: The code before issue 21's changes (the revision benchmarks/RESULTS.md compares against).
+BEFORE = "61771bb"
+
+#: Run in a subprocess inside the checkout of --before: the groom table's measurement, as JSON.
+_GROOM_SCRIPT = """
+import json, sys, time
+import sagfree
+strands, vertices, jobs = map(int, sys.argv[1:4])
+groom = sagfree.scenes.groom(strands, vertices, seed=0)
+sagfree.optimize(groom[:jobs], jobs=1)
+start = time.perf_counter()
+results = sagfree.optimize(groom, jobs=jobs)
+wall = time.perf_counter() - start
+print(json.dumps(dict(wall=wall, converged=sum(r.status == "converged" for r in results),
+                      stable=sum(bool(r.stable) for r in results), strands=len(results))))
+"""
+
+
+def groom_at_revision(revision: str, strands: int, vertices: int, jobs: int) -> dict | None:
+    """The groom measurement of ``_GROOM_SCRIPT`` run by the code at git ``revision`` (a temporary
+    worktree), or None outside a git checkout."""
+    root = Path(__file__).resolve().parents[1]
+    if not revision or not (root / ".git").exists():
+        return None
+    with tempfile.TemporaryDirectory(prefix="sagfree-before-") as where:
+        checkout = Path(where) / "src"
+        subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", "-q", str(checkout), revision],
+                       check=True)
+        try:
+            out = subprocess.run([sys.executable, "-c", _GROOM_SCRIPT, str(strands), str(vertices), str(jobs)],
+                                 cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, check=True,
+                                 capture_output=True, text=True).stdout
+        finally:
+            subprocess.run(["git", "-C", str(root), "worktree", "remove", "--force", str(checkout)], check=False)
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def groom_table(strands: int, vertices: int, jobs: int, before: str) -> None:
     groom = sagfree.scenes.groom(strands, vertices, seed=0)
+    previous = groom_at_revision(before, strands, vertices, jobs)
     sagfree.optimize(groom[:jobs], jobs=1)  # compile / load caches outside the timing
     start = time.perf_counter()
     results = sagfree.optimize(groom, jobs=jobs)
     wall = time.perf_counter() - start
     s = summary(results)
-    print(f"1. groom {strands} strands x {vertices} vertices, {jobs} jobs")
-    print(f"   wall time {wall:.2f} s   (predecessor, published: {PREDECESSOR_SECONDS} s; "
-          f"ratio {wall / PREDECESSOR_SECONDS:.2f})")
+    stable = sum(bool(r.stable) for r in results)
+    print(f"1. groom {strands} strands x {vertices} vertices, {jobs} jobs, stability on")
+    print(f"   {'code':24} {'wall s':>8} {'converged':>10} {'stable':>7} {'/ 11.2 s':>9} {'/ before':>9}")
+    if previous is not None:
+        print(f"   {'before (' + before + ')':24} {previous['wall']:8.2f} {previous['converged']:>10} "
+              f"{previous['stable']:>7} {previous['wall'] / PREDECESSOR_SECONDS:9.2f} {1.0:9.2f}")
+    ratio = f"{wall / previous['wall']:9.2f}" if previous is not None else f"{'-':>9}"
+    print(f"   {'this checkout':24} {wall:8.2f} {s['statuses']['converged']:>10} {stable:>7} "
+          f"{wall / PREDECESSOR_SECONDS:9.2f} {ratio}")
+    print(f"   (predecessor, published: {PREDECESSOR_SECONDS} s for 1.9K x 100 on its machine)")
     print(f"   mean solve time per strand {s['solve_time'].mean() * 1e3:.1f} ms "
           f"(max {s['solve_time'].max() * 1e3:.1f} ms); statuses {s['statuses']}")
     print(f"   {'count':16} {'mean':>9} {'max':>9}")
@@ -51,20 +105,21 @@ def groom_table(strands: int, vertices: int, jobs: int) -> None:
         print(f"   {k:16} {v.mean():9.1f} {v.max():9d}")
 
 
-def size_table(strands: int) -> None:
+def size_table(sizes, strands: int) -> None:
     print(f"\n2. time per strand against strand size ({strands} groom strands per size, one core)")
     print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'GN steps':>9} {'factor./GN':>11} "
-          f"{'converged':>10}")
-    for n in (25, 50, 100, 200, 400):
+          f"{'converged':>10} {'stable':>7}")
+    for n in sizes:
         groom = sagfree.scenes.groom(strands, n, seed=0)
         sagfree.optimize(groom[:1], jobs=1)
         results = sagfree.optimize(groom, jobs=1)
         t = np.mean([r.time for r in results])
-        steps = np.mean([r.iterations["gauss_newton"] for r in results])
-        factorizations = np.mean([r.iterations["factorizations"] for r in results])
+        steps = np.mean([r.iterations.get("gauss_newton", 0) for r in results])
+        factorizations = np.mean([r.iterations.get("factorizations", 0) for r in results])
         ok = sum(r.status == "converged" for r in results)
-        print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {steps:9.1f} {factorizations / steps:11.1f} "
-              f"{ok:>6}/{len(results)}")
+        stable = sum(bool(r.stable) for r in results)
+        print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {steps:9.1f} {factorizations / max(steps, 1):11.1f} "
+              f"{ok:>6}/{len(results)} {stable:>7}", flush=True)
 
 
 def ablation_table(strands: int, vertices: int) -> None:
@@ -90,11 +145,13 @@ def main() -> None:
     parser.add_argument("--strands", type=int, default=1900)
     parser.add_argument("--vertices", type=int, default=100)
     parser.add_argument("--jobs", type=int, default=os.cpu_count())
-    parser.add_argument("--size-strands", type=int, default=20, help="strands per size in table 2")
+    parser.add_argument("--before", default=BEFORE, help="git revision to run side by side ('' = skip)")
+    parser.add_argument("--sizes", default="25,100,400,1000,2000", help="strand sizes of table 2")
+    parser.add_argument("--size-strands", type=int, default=10, help="strands per size in table 2")
     parser.add_argument("--ablation", type=int, default=10, help="strands in table 3")
     args = parser.parse_args()
-    groom_table(args.strands, args.vertices, args.jobs)
-    size_table(args.size_strands)
+    groom_table(args.strands, args.vertices, args.jobs, args.before)
+    size_table([int(n) for n in args.sizes.split(",")], args.size_strands)
     ablation_table(args.ablation, args.vertices)
 
 

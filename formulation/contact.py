@@ -69,6 +69,11 @@ def find_contacts(points: np.ndarray, radius: float, bodies, held: np.ndarray, s
     distance = CONTACT_RADII * radius if contact_distance is None else float(contact_distance)
     if not (np.isfinite(distance) and distance >= 0):
         raise ValueError(f"contact_distance must be a non-negative length (m), got {contact_distance!r}")
+    if not bodies:  # most strands: nothing to find (and a groom builds thousands of Problems)
+        empty = np.zeros((0, 3))
+        return Contacts(bodies, np.zeros(0, int), np.zeros(0, int), empty, np.zeros((0, 2, 3)),
+                        np.zeros((0, 1, 3)), np.zeros((0, 3, 3)), np.zeros((n, 0)),
+                        np.asarray(stiffness, dtype=float))
     free = np.ones(n, dtype=bool)
     free[held] = False
     levels = np.full((n, len(bodies)), float(radius))

@@ -177,6 +177,7 @@ class ParameterLayout:
             else:
                 self.p0[ix], self.lower[ix], self.upper[ix] = 1.0, *STIFFNESS_BOX
         self._apply_user(bounds, weights)
+        self.validate()
 
         # ---- physical slot maps (layouts of energies.EDGE_PHYSICAL / VERTEX_PHYSICAL) ----
         def slot(n, const, block=None, element_index=None, coefficient=1.0):
@@ -220,7 +221,6 @@ class ParameterLayout:
         for name, value in (weights or {}).items():
             ix = self._block_index(name, "weights")
             self.weights[ix] = self.share[ix] * np.broadcast_to(np.asarray(value, dtype=float), ix.shape)
-        self.validate()
 
     def _block_index(self, name: str, what: str) -> np.ndarray:
         if name not in self.blocks:
@@ -231,6 +231,10 @@ class ParameterLayout:
 
     def validate(self) -> None:
         """Raise a ValueError naming the block and entry of any inconsistent bound or weight."""
+        lo, hi, p0, w = self.lower, self.upper, self.p0, self.weights
+        if np.all(np.isfinite(lo) & np.isfinite(hi) & (lo <= hi) & (p0 >= lo) & (p0 <= hi) & np.isfinite(w)
+                  & (w >= 0)):
+            return  # one pass over p; the loop below only names the first bad entry
         for name, ix in self.blocks.items():
             lo, hi, p0, w = self.lower[ix], self.upper[ix], self.p0[ix], self.weights[ix]
             checks = [

@@ -35,6 +35,8 @@ from .strand import InvalidStrand, Strand
 HALF_BANDWIDTH = 10
 #: Default stability margin: this share of the unstressed strand's smallest eigenvalue (Problem).
 STABILITY_FRACTION = 0.1
+#: stability results kept per problem (Problem.stability)
+STABILITY_MEMO = 4
 
 
 class Problem:
@@ -158,6 +160,10 @@ class Problem:
         self._free_row_scale = self.row_scale[self.free_index]
         self._free_gather = _free_gather(self.free_index, self.q_star.size)
         self._band_scatter = None  # built on the first hessian_band call
+        # the last few (lambda, mode) of stability at q*, by p: a solver's Result, the stabilization
+        # loop and the final Result all ask for the same p (shared with with_lower_bounds twins: the
+        # eigenvalue does not depend on the bounds)
+        self._stability_memo: dict[bytes, tuple[float, np.ndarray]] = {}
 
     def with_options(self, **changes) -> "Problem":
         """The same strand's Problem with some constructor options changed."""
@@ -433,15 +439,31 @@ class Problem:
         normalized so that v^T M v = 1. Linear in n: compiled shift-and-invert Lanczos on the scaled
         band M^-1/2 H M^-1/2 (linalg.eigen).
         """
-        if q is None and frames is None and self.contacts.count:
+        if q is None and frames is None:
+            key = np.asarray(p, dtype=float).tobytes()
+            if key not in self._stability_memo:
+                if len(self._stability_memo) >= STABILITY_MEMO:
+                    del self._stability_memo[next(iter(self._stability_memo))]
+                self._stability_memo[key] = self._stability_at_rest(p)
+            value, v = self._stability_memo[key]
+            return (value, v.copy()) if vector else value
+        return self._stability_of_band(self.static_hessian_band(p, q, frames), vector)
+
+    def _stability_at_rest(self, p) -> tuple[float, np.ndarray]:
+        """``stability(p, vector=True)`` at q*, uncached."""
+        if self.contacts.count:
             supports = self.check_parameters(p)[self.layout.blocks[CONTACT_BLOCK]].reshape(self.contacts.count, -1)
             if np.any(supports > 0):
-                return self._stability_on_bodies(p, np.flatnonzero(np.any(supports > 0, axis=1)), vector)
-        band = self.free_band(self.static_hessian_band(p, q, frames))
+                return self._stability_on_bodies(p, np.flatnonzero(np.any(supports > 0, axis=1)), True)
+        return self._stability_of_band(self.static_hessian_band(p), True)
+
+    def _stability_of_band(self, full_band: np.ndarray, vector: bool):
+        """(lambda, v) or lambda of the mass-normalized free block of a full Hessian band (``stability``)."""
+        band = self.free_band(full_band)
         scale = 1.0 / np.sqrt(self.dof_masses[self.free_index])
         size = band.shape[1]
         scaled = np.zeros_like(band)
-        for k in range(band.shape[0]):
+        for k in range(min(band.shape[0], size)):  # a 3-vertex strand has fewer free DOFs than diagonals
             scaled[k, : size - k] = band[k, : size - k] * scale[k:] * scale[: size - k]
         value, mode = smallest_eigenpair(scaled)
         if not vector:

@@ -62,7 +62,28 @@ def _problem_options(args) -> dict:
         options["contact_distance"] = args.contact_distance
     if args.friction:
         options["friction"] = args.friction
+    if args.bound:
+        options["bounds"] = dict(args.bound)
     return options
+
+
+def _bound(text: str) -> tuple[str, object]:
+    """--bound BLOCK=LOWER,UPPER (the box of every entry of a block, in p's normalized units) or
+    --bound curvature_budget=VALUE / twist_budget=VALUE: the ``bounds`` of Problem."""
+    from sagfree.formulation.parameters import BLOCKS, BUDGETS
+
+    name, equals, raw = (part.strip() for part in text.partition("="))
+    if not equals or name not in (*BLOCKS, *BUDGETS):
+        raise argparse.ArgumentTypeError(f"--bound {text!r}: expected BLOCK=LOWER,UPPER with BLOCK one of "
+                                         f"{', '.join(BLOCKS)}, or {' / '.join(BUDGETS)}=VALUE")
+    try:
+        values = [float(v) for v in raw.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != (1 if name in BUDGETS else 2):
+        raise argparse.ArgumentTypeError(f"--bound {text!r}: {name} takes "
+                                         f"{'one value' if name in BUDGETS else 'LOWER,UPPER'}")
+    return name, values[0] if name in BUDGETS else values
 
 
 def _solver_options(args) -> dict:
@@ -314,6 +335,11 @@ def parser() -> argparse.ArgumentParser:
                      help="vertices within this distance (m) of a body rest on it (default 2 strand radii)")
     opt.add_argument("--friction", type=float, default=0.0, metavar="MU",
                      help="Coulomb friction coefficient between strands and bodies (default 0: frictionless)")
+    opt.add_argument("--bound", action="append", type=_bound, metavar="BLOCK=LO,HI",
+                     help="the box of a parameter block, e.g. bend_stiffness=1,1000 (stiffness "
+                     "multipliers), rest_length=-0.1,0.1 (relative), or curvature_budget=VALUE / "
+                     "twist_budget=VALUE (rad per strand) for the rest-shape boxes (repeatable; "
+                     "what an infeasible strand's message asks to relax)")
     opt.add_argument("--no-stabilize", action="store_true",
                      help="the bare problem: converged strands need not be stable rest states")
     opt.add_argument("--resume", action="store_true",

@@ -112,3 +112,25 @@ def test_optimize_then_simulate_on_the_command_line(tmp_path, capsys):
 def test_simulate_reports_unreadable_input_with_exit_code_2(tmp_path, capsys):
     assert main(["simulate", "horizontal", "--params", str(tmp_path / "missing.npz")]) == 2
     assert "missing.npz: no such file" in capsys.readouterr().err
+
+
+def test_bounds_on_the_command_line_reach_the_problem_and_the_simulation(tmp_path, capsys):
+    """The box an infeasible strand's message asks to relax can be set where the user is: --bound.
+    A tight rest-curvature budget and no stiffening leave the horizontal strand infeasible (exit 1,
+    the message suggests --bound); relaxed, it converges, and simulate rebuilds the same boxes."""
+    out = tmp_path / "tight.npz"
+    assert main(["optimize", "horizontal", "-o", str(out), "--jobs", "1", "--quiet", "--bound",
+                 "curvature_budget=0.01", "--bound", "bend_stiffness=1,1"]) == 1
+    text = capsys.readouterr().out
+    assert "infeasible" in text and "--bound" in text
+    assert load_parameters(out).problem_options["bounds"] == {"curvature_budget": 0.01, "bend_stiffness": [1, 1]}
+    relaxed = tmp_path / "relaxed.npz"
+    assert main(["optimize", "horizontal", "-o", str(relaxed), "--jobs", "1", "--quiet", "--bound",
+                 "bend_stiffness=1,1000"]) == 0
+    assert main(["simulate", "horizontal", "--params", str(relaxed), "--jobs", "1", "--quiet", "--steps", "20"]) == 0
+    capsys.readouterr()
+    for bad in ("bend=1,2", "bend_stiffness=1", "curvature_budget=a", "rest_length"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["optimize", "horizontal", "-o", str(tmp_path / "x.npz"), "--bound", bad])
+        assert exit_.value.code == 2
+        assert "--bound" in capsys.readouterr().err

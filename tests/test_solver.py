@@ -218,6 +218,24 @@ def test_strands_that_crawled_at_large_mu_converge():
         assert result.iterations["sqp"] >= 1
 
 
+@pytest.mark.parametrize("vertices", [3, 4, 2000])
+def test_every_strand_size_converges_stably(vertices):
+    """The shortest strands (one inner vertex: fewer free DOFs than the Hessian has diagonals, which
+    once broke the stability check) and long ones: on groom(1, 2000) Gauss-Newton crawled at a
+    feasible p for 123 steps before the crawl test (alm._crawls) handed over to Newton-SQP (~20)."""
+    for strand in sagfree.scenes.groom(2 if vertices < 10 else 1, vertices, seed=0):
+        problem = sagfree.Problem(strand)
+        result = sagfree.solve(problem)
+        if vertices < 10:
+            check_solution(problem, result)
+        else:  # check_solution's independent KKT test is a dense least squares: minutes at this size
+            assert result.status == "converged", result.message
+            solved = problem if result.floors is None else problem.with_lower_bounds(result.floors)
+            assert kkt_optimality(solved, result.p) <= KKT_TOL
+        assert result.stable and result.min_eigenvalue >= problem.stability_margin
+        assert result.iterations["gauss_newton"] < 60
+
+
 @pytest.mark.parametrize("dense_column", [True, False])
 def test_least_squares_multipliers_minimize_the_scaled_lagrangian_gradient(dense_column, rng):
     """multipliers.least_squares_multipliers against dense least squares on a banded J, with a column that

@@ -54,3 +54,12 @@ def test_a_radius_far_above_the_edge_lengths_is_refused_naming_the_edge():
     assert sagfree.Strand(points, radius=2e-5).radius == 2e-5
     hair = sagfree.scenes.groom(1, 2000, seed=0)[0]
     assert hair.radius > hair.edge_lengths.min()
+
+
+def test_a_batch_warns_once_naming_the_strands_thicker_than_an_edge():
+    """Radii of one to ten edge lengths are solved, with one warning naming strand and edge."""
+    x = np.linspace(0.0, 1e-3, 30)
+    thick = sagfree.Strand(np.column_stack([x, 0 * x, 0 * x]), radius=5e-5)  # 1.45 edge lengths
+    with pytest.warns(UserWarning, match=r"1 of 2 strands have a radius above an edge length \(strand 1 at edge"):
+        results = sagfree.optimize([sagfree.scenes.horizontal(), thick], jobs=1)
+    assert [r.status for r in results] == ["converged", "converged"]

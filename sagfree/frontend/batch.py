@@ -16,6 +16,7 @@ import multiprocessing
 import os
 import time
 import traceback
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from functools import partial
 
@@ -53,6 +54,23 @@ def solve_strand(strand: Strand, solver: str = "asc", solver_options: dict | Non
                              time.perf_counter() - start)
 
 
+#: Largest chunk of strands sent to a worker at once (a 100-vertex strand takes ~10 ms).
+MAX_CHUNK = 64
+
+
+def chunk_starts(count: int, jobs: int) -> list[int]:
+    """Boundaries of contiguous chunks of ``count`` items for ``jobs`` workers: guided scheduling,
+    each chunk a quarter of the remaining items' share per worker (between 1 and MAX_CHUNK), so the
+    first chunks amortize the transfer and the last ones are single strands that leave no worker
+    idle while another finishes a long chunk (with equal chunks of 64, one core idled for up to a
+    chunk's time at the end of a groom)."""
+    starts, first = [0], 0
+    while first < count:
+        first += max(1, min(MAX_CHUNK, (count - first) // (4 * jobs)))
+        starts.append(min(first, count))
+    return starts
+
+
 def _run_chunk(function, chunk, arguments) -> list:
     return [function(*item, *arguments) for item in chunk]
 
@@ -73,9 +91,9 @@ def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int |
     workers are killed (in this process, jobs = 1, there is no watchdog).
     """
     jobs = (os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
-    # small chunks keep all workers busy to the end; several per worker amortize the transfer
-    size = max(1, min(64, len(items) // (4 * jobs)))
-    chunks = [items[i: i + size] for i in range(0, len(items), size)]
+    starts = chunk_starts(len(items), jobs)
+    chunks = [items[a:b] for a, b in zip(starts[:-1], starts[1:])]
+    size = max((len(c) for c in chunks), default=1)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -84,7 +102,7 @@ def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int |
 
     def finished(k: int, results: list) -> None:
         if on_chunk is not None:
-            on_chunk(k * size, results)
+            on_chunk(starts[k], results)
         if bar is not None:
             bar.update(len(results))
 
@@ -154,12 +172,34 @@ def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_optio
     # usage errors (unknown solver, missing plugin, misspelled option) are raised once, before any work
     solver_options = check_options(solver, solver_options)
     check_problem_options(problem_options)
+    warn_thick_strands(strands)
     if strands:  # in this process, so that forked workers start warm; the screen says what the wait is
         announced_warm_up(solver, solver_options, problem_options, progress, strands)
     with builds_paused():  # a background compiler (formulation.compiled) never shares the cores with timing
         return map_strands(_solve, [(s,) for s in strands], (solver, solver_options, problem_options),
                            jobs, progress, solver, partial(failed_result, solver), scheduler, on_chunk,
                            strand_timeout)
+
+
+def warn_thick_strands(strands) -> None:
+    """One UserWarning naming the first strands whose radius exceeds one of their edge lengths.
+
+    DER treats a strand as a thin rod; a radius of one to MAX_RADIUS_PER_EDGE edge lengths is still
+    solved (a 2000-vertex hair is such a strand, 1.4 edge lengths) but the model is coarse there, and
+    a groom of such strands is often a unit mix-up. Above that the Strand itself is refused."""
+    thick = []
+    for k, strand in enumerate(strands):
+        if not isinstance(strand, Strand):
+            continue  # solve_strand reports it
+        lengths = np.linalg.norm(np.diff(strand.points, axis=0), axis=1)
+        edge = int(np.argmin(lengths))
+        if strand.radius > lengths[edge]:
+            thick.append(f"strand {k} at edge {edge} ({strand.radius / lengths[edge]:.2g}x)")
+    if thick:
+        warnings.warn(f"{len(thick)} of {len(strands)} strands have a radius above an edge length "
+                      f"({', '.join(thick[:3])}{', ...' if len(thick) > 3 else ''}): DER models thin rods, "
+                      "so the model is coarse there; check the units of the radius, or resample the strands "
+                      "with fewer vertices", UserWarning, stacklevel=3)
 
 
 def _solve(strand, solver, solver_options, problem_options) -> Result:

@@ -129,7 +129,8 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
         if not room.any():
             verdict = ("infeasible", f"{result.message}; cannot be stabilized inside the boxes: smallest "
                        f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2 and every stiffness multiplier that "
-                       "would raise it is at its upper bound; relax the stiffness bounds")
+                       "would raise it is at its upper bound; relax the stiffness bounds (bounds={'bend_stiffness': "
+                       "(1, 1000)}; command line: --bound bend_stiffness=1,1000)")
             break
         curvature = current.layout.weights[room] + 1e-12
         step = (OVERSHOOT * margin - value) / float(np.sum(gradient[room] ** 2 / curvature))
