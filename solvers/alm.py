@@ -52,11 +52,10 @@ Crawl: an inner solve ends after INNER_STEPS Gauss-Newton steps and the outer lo
     step, lam, mu); the infeasibility test still needs inner solves that reach the stationary point
     of |c|, which 30 steps allow. Near feasibility (|c|_inf <= CRAWL_NEAR tol) it ends sooner, once
     CRAWL_WINDOW steps in a row reduced neither |c|_inf nor pi by 10% (_crawls): on long strands
-    the soft bending modes make Gauss-Newton crawl there (a 2000-vertex groom strand took 123
-    Gauss-Newton steps, 30 per crawling round, where 100-vertex strands take 3), and what ends a crawl
-    is the outer loop's SQP or Newton-SQP step. With NEWTON_AFTER = 1 (one such round at a feasible
-    p before Newton-SQP) the strands of groom(2, 2000, seed=0) took 20.5 steps and those of
-    groom(4, 1000, seed=0) 4.5 (24.8 before), R within 8e-6 (relative) of the old answers.
+    the soft bending modes make Gauss-Newton crawl there, and what ends a crawl is the outer loop's
+    SQP or Newton-SQP step, tried after one such round at a feasible p (NEWTON_AFTER = 1): the
+    strands of groom(2, 2000, seed=0) took 20.5 Gauss-Newton steps instead of 123 (measurements
+    in benchmarks/RESULTS.md, 2026-12-02).
 Infeasible: once mu has reached 10^4 mu0 and either the best box-constrained Gauss-Newton step for
     |c|^2 alone reduces |c| by less than 1% (p is a stationary point of the constraint violation
     inside the box) or |c|_inf is still above STALLED_VIOLATION (the penalty crawls), the best effort
