@@ -440,12 +440,8 @@ class Problem:
         band M^-1/2 H M^-1/2 (linalg.eigen).
         """
         if q is None and frames is None:
-            key = np.asarray(p, dtype=float).tobytes()
-            if key not in self._stability_memo:
-                if len(self._stability_memo) >= STABILITY_MEMO:
-                    del self._stability_memo[next(iter(self._stability_memo))]
-                self._stability_memo[key] = self._stability_at_rest(p)
-            value, v = self._stability_memo[key]
+            value, v = _memo(self._stability_memo, np.asarray(p, dtype=float).tobytes(),
+                             lambda: self._stability_at_rest(p), STABILITY_MEMO)
             return (value, v.copy()) if vector else value
         return self._stability_of_band(self.static_hessian_band(p, q, frames), vector)
 
@@ -592,11 +588,11 @@ def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
                              "(kg/m^3) and coordinates (m)")
 
 
-def _memo(cache: dict, key, build):
-    """cache[key], made by build() when missing; beyond 16 entries the oldest goes (the strands of a
-    groom share a few structures)."""
+def _memo(cache: dict, key, build, limit: int = 16):
+    """cache[key], made by build() when missing; beyond ``limit`` entries the oldest goes (the strands
+    of a groom share a few structures)."""
     if key not in cache:
-        if len(cache) >= 16:
+        if len(cache) >= limit:
             cache.pop(next(iter(cache)))
         cache[key] = build()
     return cache[key]

@@ -102,6 +102,12 @@ class Strand:
         return np.linalg.norm(np.diff(self.points, axis=0), axis=1)
 
     @property
+    def thickness(self) -> tuple[int, float]:
+        """(edge, radius over its length) of the shortest edge: how far the strand is from a thin rod
+        (refused above MAX_RADIUS_PER_EDGE; a batch warns above 1)."""
+        return _thickness(self.points, self.radius)
+
+    @property
     def length(self) -> float:
         """Strand length L, m."""
         return float(self.edge_lengths.sum())
@@ -134,16 +140,20 @@ def _check_thin(points: np.ndarray, radius: float) -> None:
     Gauss-Newton steps for a 1 mm, 50-vertex strand of radius 5 mm). Radii of a few edge lengths (a
     2000-vertex hair, 1.4x) are kept: the model is coarse there but solvable.
     """
-    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    worst = int(np.argmin(lengths))
-    if radius > MAX_RADIUS_PER_EDGE * lengths[worst]:
-        with np.errstate(over="ignore", divide="ignore"):
-            ratio = radius / lengths[worst]
+    worst, ratio = _thickness(points, radius)
+    if ratio > MAX_RADIUS_PER_EDGE:
         raise ValueError(
             f"radius {radius:g} m is {ratio:.3g} times the length of edge {worst} (vertices {worst}-"
-            f"{worst + 1}, {lengths[worst]:.3g} m): not a thin rod (sagfree refuses a radius above "
+            f"{worst + 1}, {radius / ratio:.3g} m): not a thin rod (sagfree refuses a radius above "
             f"{MAX_RADIUS_PER_EDGE:g} edge lengths); check the units of the radius or thickness, or resample "
             "the strand with fewer vertices")
+
+
+def _thickness(points: np.ndarray, radius: float) -> tuple[int, float]:
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    edge = int(np.argmin(lengths))
+    with np.errstate(over="ignore", divide="ignore"):
+        return edge, float(radius / lengths[edge])
 
 
 class InvalidStrand:

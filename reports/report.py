@@ -192,7 +192,8 @@ def build_document(study: Study, title: str, intro: list | None = None, figures:
             "OSQP's setup and solves; penalty-gn: its Cholesky; Ipopt's MUMPS is not timed apart from the "
             "rest of Ipopt by CasADi and counts as other) and the rest."),
             *_note_and_table(["scene", "mode", "solver", "strands", "statuses", "time (ms)",
-                              "time min/med/max (ms)", "model / lin. alg. / other (%)", "major iterations", "iterations min/med/max",
+                              "time min/med/max (ms)", "model / lin. alg. / other (%)", "major iterations",
+                              "iterations min/med/max",
                               "time / asc", "R gap"], compared))
         if figures and "profiles" in figures:
             doc.add(_figure(figures["profiles"], "profiles", directory, 1.0))

@@ -388,8 +388,8 @@ def parser() -> argparse.ArgumentParser:
                          description="Run the study a TOML file declares (scenes or strand files, solvers, "
                          "stiffness modes, curvature variants, solver options, strand subsets, simulation "
                          "checks; see sagfree/reports/study_file.py and the examples in studies/) and write "
-                         "its report. Exit code 1 if asc failed or hit a limit on a strand or a derivative check failed, 2 "
-                         "for a malformed file.")
+                         "its report. Exit code 1 if asc failed or hit a limit on a strand or a derivative "
+                         "check failed, 2 for a malformed file.")
     stu.add_argument("file", metavar="STUDY.toml", help="the study file")
     stu.add_argument("--out", default=None, help="output directory (default: the file's 'out', else its name)")
     stu.add_argument("--no-pdf", action="store_true", help="write report.md only")

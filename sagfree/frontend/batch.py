@@ -191,10 +191,9 @@ def warn_thick_strands(strands) -> None:
     for k, strand in enumerate(strands):
         if not isinstance(strand, Strand):
             continue  # solve_strand reports it
-        lengths = np.linalg.norm(np.diff(strand.points, axis=0), axis=1)
-        edge = int(np.argmin(lengths))
-        if strand.radius > lengths[edge]:
-            thick.append(f"strand {k} at edge {edge} ({strand.radius / lengths[edge]:.2g}x)")
+        edge, ratio = strand.thickness
+        if ratio > 1.0:
+            thick.append(f"strand {k} at edge {edge} ({ratio:.2g}x)")
     if thick:
         warnings.warn(f"{len(thick)} of {len(strands)} strands have a radius above an edge length "
                       f"({', '.join(thick[:3])}{', ...' if len(thick) > 3 else ''}): DER models thin rods, "

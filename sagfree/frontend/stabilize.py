@@ -6,8 +6,8 @@ at q* are fixed by statics, so the Hessian is a fixed stress term plus sum_j k_j
 stiffness restores stability, the smallest eigenvalue is concave in the multipliers k, and a rise of
 k_j that keeps k_j (kbar_j - kappa*) (formulation.rest_change.restiffen) keeps c = 0. (A held tip,
 pins or bodies add reactions the optimum may redistribute; the loop below then is a first-order
-method without that guarantee, and the result is still checked for stability.) Self-weight buckling of strands that point
-upward is what the boxes alone never prevent.
+method without that guarantee, and the result is still checked for stability.) Self-weight buckling
+of strands that point upward is what the boxes alone never prevent.
 
 The stabilized problem is the bare one with stiffness FLOORS: lower bounds on the multipliers that
 make its optimum stable. They are found by a cutting-plane loop on the bare problem (``floors_loop``):
