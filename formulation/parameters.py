@@ -67,6 +67,54 @@ _EDGE_BLOCKS = {"rest_length": 1, "stretch_stiffness": 1}
 _VERTEX_BLOCKS = {"rest_curvature": 2, "rest_twist": 1, "bend_stiffness": 1, "twist_stiffness": 1}
 
 
+def _budget(name: str, value) -> float:
+    """A curvature or twist budget (rad over the whole strand): positive and finite."""
+    try:
+        budget = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"bounds: {name} must be a number of radians, got {value!r}") from None
+    if not (np.isfinite(budget) and budget >= 0):
+        raise ValueError(f"bounds: {name} must be a non-negative number of radians (the total rest "
+                         f"{'curvature' if name.startswith('curvature') else 'twist'} change allowed along "
+                         f"the strand), got {value!r}")
+    return budget
+
+
+def check_user_bounds(bounds) -> None:
+    """The parts of a ``bounds`` option that do not depend on the strand, checked once before a batch
+    (a wrong one would fail every strand alike): known names, budgets, (lower, upper) pairs of
+    finite numbers with lower <= upper where both are scalars."""
+    for name, value in (bounds or {}).items():
+        if name in BUDGETS:
+            _budget(name, value)
+            continue
+        if name not in (*BLOCKS, STRAND_BLOCK, CONTACT_BLOCK):
+            raise ValueError(f"bounds given for {name!r}, which is no parameter block; blocks: "
+                             f"{', '.join((*BLOCKS, STRAND_BLOCK, CONTACT_BLOCK))}, or {' / '.join(BUDGETS)}")
+        try:
+            lo, hi = value
+        except (TypeError, ValueError):
+            raise ValueError(f"bounds of {name!r} must be a pair (lower, upper), got {value!r}") from None
+        sides = [_block_values(name, what, side, (np.size(side),)) for what, side in
+                 (("lower bound", lo), ("upper bound", hi))]
+        if not all(np.all(np.isfinite(side)) for side in sides):
+            raise ValueError(f"bounds of {name!r} must be finite, got {value!r}")
+        if sides[0].size == sides[1].size == 1 and sides[0][0] > sides[1][0]:
+            raise ValueError(f"bounds of {name!r}: lower bound {sides[0][0]:g} above upper bound {sides[1][0]:g}")
+
+
+def _block_values(name: str, what: str, value, shape: tuple) -> np.ndarray:
+    """A user's bound or weight of block ``name``: a scalar or one value per entry of the block."""
+    try:
+        values = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} of {name!r} must be numbers, got {value!r}") from None
+    if values.ndim > 1 or values.size not in (1, shape[0]):
+        raise ValueError(f"{what} of {name!r} must be a scalar or one value per entry of the block "
+                         f"({shape[0]} entries here), got an array of shape {values.shape}")
+    return np.broadcast_to(values.reshape(-1) if values.size == shape[0] else values.reshape(()), shape)
+
+
 @dataclass
 class SlotMap:
     """physical[k, s] = constant[k, s] + coefficient[k, s] * p[index[k, s]] where index >= 0."""
@@ -145,7 +193,7 @@ class ParameterLayout:
         bounds = dict(bounds or {})
         for key in BUDGETS:
             if key in bounds:
-                budgets[key] = float(bounds.pop(key))
+                budgets[key] = _budget(key, bounds.pop(key))
         defaults = {
             "rest_length": (np.zeros(n_edges), -RELATIVE_LENGTH_BOX, RELATIVE_LENGTH_BOX),
             "rest_curvature": (np.asarray(rest_curvature0, dtype=float).reshape(-1),
@@ -215,12 +263,15 @@ class ParameterLayout:
     def _apply_user(self, bounds: dict, weights) -> None:
         for name, value in (bounds or {}).items():
             ix = self._block_index(name, "bounds")
-            lo, hi = value
-            self.lower[ix] = np.broadcast_to(np.asarray(lo, dtype=float), ix.shape)
-            self.upper[ix] = np.broadcast_to(np.asarray(hi, dtype=float), ix.shape)
+            try:
+                lo, hi = value
+            except (TypeError, ValueError):
+                raise ValueError(f"bounds of {name!r} must be a pair (lower, upper), got {value!r}") from None
+            self.lower[ix] = _block_values(name, "lower bound", lo, ix.shape)
+            self.upper[ix] = _block_values(name, "upper bound", hi, ix.shape)
         for name, value in (weights or {}).items():
             ix = self._block_index(name, "weights")
-            self.weights[ix] = self.share[ix] * np.broadcast_to(np.asarray(value, dtype=float), ix.shape)
+            self.weights[ix] = self.share[ix] * _block_values(name, "weight", value, ix.shape)
 
     def _block_index(self, name: str, what: str) -> np.ndarray:
         if name not in self.blocks:

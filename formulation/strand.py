@@ -73,11 +73,18 @@ class Strand:
     def attached(self, root=None, tip=None, pins=None) -> "Strand":
         """The same strand with the given attachments replacing its own (None keeps its own; ``tip``
         "free" frees the tip)."""
-        return Strand(self.points, radius=self.radius, youngs_modulus=self.youngs_modulus,
-                      shear_modulus=self.shear_modulus, density=self.density, theta=self.theta,
-                      root=root or self.root, director=self.director,
-                      tip=self.tip if tip is None else (None if tip == "free" else tip),
-                      pins=self.pins if pins is None else pins, loads=self.loads)
+        return self.replaced(root=root or self.root, tip=self.tip if tip is None else (None if tip == "free" else tip),
+                             pins=self.pins if pins is None else pins)
+
+    def replaced(self, **changes) -> "Strand":
+        """The same strand with the given constructor arguments replacing its own (validated again)."""
+        own = dict(points=self.points, radius=self.radius, youngs_modulus=self.youngs_modulus,
+                   shear_modulus=self.shear_modulus, density=self.density, theta=self.theta, root=self.root,
+                   director=self.director, tip=self.tip, pins=self.pins, loads=self.loads)
+        unknown = sorted(set(changes) - set(own))
+        if unknown:
+            raise TypeError(f"Strand has no argument(s) {', '.join(unknown)}")
+        return Strand(**{**own, **changes})
 
     @property
     def prescribed_vertices(self) -> np.ndarray:
@@ -209,6 +216,37 @@ def _validated_loads(loads, n: int) -> np.ndarray:
     return f
 
 
+#: An edge longer than this many times the strand's median edge is a misplaced point (_check_outliers).
+MAX_EDGE_PER_MEDIAN = 1e6
+
+
+def _check_outliers(x: np.ndarray, lengths: np.ndarray) -> None:
+    """Refuse a vertex far off the polyline (a corrupt file, a 1e30 sentinel), naming it.
+
+    Such a point makes its two edges (one at an end) MAX_EDGE_PER_MEDIAN times longer than the
+    median edge; a groomed strand's edges differ by far less (resampled hair: a few times). Without
+    this check every ordinary edge looks like a duplicate vertex next to the huge coordinate.
+    """
+    median = float(np.median(lengths))
+    huge = lengths > MAX_EDGE_PER_MEDIAN * median if median > 0 else np.zeros(len(lengths), dtype=bool)
+    if not huge.any():
+        return
+    j = int(np.flatnonzero(huge)[0])
+    if j + 1 < len(huge) and huge[j + 1]:
+        vertex = j + 1  # both its edges are huge
+    elif j == 0 and len(huge) > 1:
+        vertex = 0
+    elif j == len(huge) - 1:
+        vertex = j + 1
+    else:
+        raise ValueError(f"edge {j} (vertices {j} and {j + 1}) is {lengths[j] / median:.3g} times the strand's "
+                         f"median edge ({median:.3g} m): the strand jumps between {x[j].tolist()} and "
+                         f"{x[j + 1].tolist()} (points are in metres)")
+    raise ValueError(f"vertex {vertex} at {x[vertex].tolist()} is {lengths[j]:.3g} m away from its neighbour, "
+                     f"{lengths[j] / median:.3g} times the strand's median edge ({median:.3g} m): a misplaced or "
+                     "corrupt point (points are in metres)")
+
+
 def _validated_points(points) -> np.ndarray:
     """Points as a float (n, 3) array; errors name the offending vertex or edge."""
     try:
@@ -228,10 +266,13 @@ def _validated_points(points) -> np.ndarray:
     huge = np.flatnonzero(~np.isfinite(lengths))
     if huge.size:
         j = huge[0]
-        raise ValueError(f"edge {j} (vertices {j} and {j + 1}) has a length beyond double precision: "
-                         f"coordinates {x[j].tolist()} are far too large (points are in metres)")
-    scale = max(float(np.abs(x).max()), float(lengths.max()))
-    short = np.flatnonzero(lengths <= 1e-12 * scale)
+        vertex = j if np.abs(x[j]).max() >= np.abs(x[j + 1]).max() else j + 1
+        raise ValueError(f"vertex {vertex} at {x[vertex].tolist()} is too far out: edge {j} (vertices {j} and "
+                         f"{j + 1}) has a length beyond double precision (points are in metres)")
+    _check_outliers(x, lengths)
+    # zero length relative to where the edge is (a 1e-13 m edge at 1 m from the origin is a duplicate)
+    scale = np.maximum(np.abs(x[:-1]).max(axis=1), np.abs(x[1:]).max(axis=1))
+    short = np.flatnonzero(lengths <= 1e-12 * np.maximum(scale, np.median(lengths)))
     if short.size:
         j = short[0]
         raise ValueError(f"edge {j} (vertices {j} and {j + 1}) has zero length: duplicate vertex "

@@ -100,8 +100,15 @@ class StudySpec:
 
 
 def load_study_file(path) -> StudySpec:
-    """Read and check a study file (module docstring); StudyFileError names what is wrong and where."""
+    """Read and check a study file (module docstring); StudyFileError names what is wrong and where.
+    A path that does not exist but names a shipped study (``studies/demo.toml``, ``curvature.toml``)
+    reads the shipped one, so the examples work outside the source tree too."""
     path = Path(path)
+    if not path.exists():
+        from sagfree import studies
+
+        shipped = Path(studies.__file__).parent / path.name
+        path = shipped if shipped.exists() and path.suffix == ".toml" else path
     try:
         text = path.read_text()
     except OSError as exc:

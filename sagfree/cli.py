@@ -3,16 +3,23 @@
 Exit codes: 0 success; 1 a check failed (``check``: a derivative mismatch; ``optimize``: a strand
 did not converge; ``simulate``: a strand moved more than ``--max-sag``, fell after a push or was not
 checked; ``demo``, ``study``, ``report``: ``asc`` failed or hit a limit on a strand, or a derivative
-check failed; an ``infeasible`` strand is an answer); 2 bad usage or unreadable input.
+check failed; an ``infeasible`` strand is an answer; ``view``: 0 once the page is written); 2 bad
+usage or unreadable input; 130 interrupted (Ctrl-C; ``optimize`` keeps the finished strands and
+prints the ``--resume`` command).
 """
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from sagfree.frontend.table import SOLVERS
+
+#: exit code after Ctrl-C (128 + SIGINT, what shells report)
+INTERRUPTED = 130
 
 
 def _solver_list(text: str) -> str:
@@ -86,6 +93,44 @@ def _bound(text: str) -> tuple[str, object]:
     return name, values[0] if name in BUDGETS else values
 
 
+def _count(minimum: int):
+    """argparse type: an integer >= minimum."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        return value
+    return parse
+
+
+def _number(positive: bool):
+    """argparse type: a finite number, > 0 if ``positive`` else >= 0."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (value < float("inf") and (value > 0 if positive else value >= 0)):
+            raise argparse.ArgumentTypeError(f"must be {'positive' if positive else 'non-negative'} and "
+                                             f"finite, got {text}")
+        return value
+    return parse
+
+
+def _parameters_output(text: str) -> str:
+    """argparse type of ``optimize -o``: a parameters file (.npz) or an OpenUSD stage with the
+    parameters as primvars, by extension."""
+    from sagfree.scenes.usd import EXTENSIONS
+
+    if Path(text).suffix.lower() not in (".npz", *EXTENSIONS):
+        raise argparse.ArgumentTypeError(f"{text!r}: the output must end in .npz (a parameters file) or "
+                                         f"{', '.join(EXTENSIONS)} (an OpenUSD stage with them as primvars)")
+    return text
+
+
 def _solver_options(args) -> dict:
     """--option NAME=VALUE pairs, checked against the solver's options before any work."""
     from sagfree.frontend.options import check_options, parse_option
@@ -117,7 +162,10 @@ def _optimize(args) -> int:
     from sagfree.frontend.batch import optimize
     from sagfree.frontend.checkpoint import Checkpoint
     from sagfree.scenes.npz import save_parameters
+    from sagfree.scenes.usd import is_stage, require_pxr, save_stage
 
+    if is_stage(args.output):
+        require_pxr()  # before the work, not after it
     solver_options = _solver_options(args)
     strands = _load_input(args)
     options = _problem_options(args)
@@ -127,12 +175,22 @@ def _optimize(args) -> int:
     if checkpoint.done:
         print(f"resuming: {len(checkpoint.done)} of {len(strands)} strands were solved before")
     start = time.perf_counter()
-    optimize([strands[k] for k in todo], solver=args.solver, jobs=args.jobs, progress=not args.quiet,
-             scheduler=args.scheduler, solver_options=solver_options, on_chunk=lambda first, res: checkpoint.save(todo[first: first + len(res)], res),
-             **options)
+    try:
+        optimize([strands[k] for k in todo], solver=args.solver, jobs=args.jobs, progress=not args.quiet,
+                 scheduler=args.scheduler, solver_options=solver_options,
+                 on_chunk=lambda first, res: checkpoint.save(todo[first: first + len(res)], res), **options)
+    except KeyboardInterrupt:
+        again = shlex.join(["sagfree", *(args.argv or ["optimize"]), *([] if args.resume else ["--resume"])])
+        print(f"\ninterrupted: {len(checkpoint.done)} of {len(strands)} strands are solved and kept in "
+              f"{checkpoint.directory}/; continue with\n  {again}", file=sys.stderr)
+        return INTERRUPTED
     wall = time.perf_counter() - start
     results = [checkpoint.done[k] for k in range(len(strands))]
-    save_parameters(args.output, strands, results, args.solver, options)
+    if is_stage(args.output):  # the input stage copied (a new stage for other input), parameters as primvars
+        save_stage(args.output, strands, results, args.solver, options,
+                   source=args.input if is_stage(args.input) else None)
+    else:
+        save_parameters(args.output, strands, results, args.solver, options)
     checkpoint.remove()
     print(f"{len(results)} strands with {args.solver} in {wall:.2f} s: {status_summary(results)}")
     eigenvalues = [r.min_eigenvalue for r in results if r.min_eigenvalue == r.min_eigenvalue]
@@ -146,13 +204,29 @@ def _optimize(args) -> int:
     return 0 if all(r.status == "converged" for r in results) else 1
 
 
+def _load_parameters(args):
+    """The parameters ``--params`` names (a .npz file, or an OpenUSD stage ``optimize`` wrote), else
+    those the input carries when it is such a stage (scenes.usd)."""
+    from sagfree.scenes.npz import load_parameters
+    from sagfree.scenes.usd import is_stage, load_stage_parameters
+
+    source = args.params if args.params is not None else args.input
+    if is_stage(source):
+        params = load_stage_parameters(source)
+        if params is None:
+            raise ValueError(f"{source}: the stage's curves carry no sagfree parameters (primvars:sagfree:parameters);"
+                             " write them with 'sagfree optimize INPUT -o OUT.usda', or give --params FILE")
+        return params
+    if args.params is None:
+        raise ValueError(f"{args.input}: --params FILE is needed (the parameters 'sagfree optimize' wrote); only an "
+                         "OpenUSD stage written by 'sagfree optimize' carries its own")
+    return load_parameters(args.params)
+
+
 def _simulate(args) -> int:
     from sagfree.frontend.batch import simulate_strands
-    from sagfree.scenes.npz import load_parameters
 
-    strands = _load_input(args)
-    params = load_parameters(args.params)
-    params.check_matches(strands, args.input)
+    params, strands = _checked_parameters(args, _load_input(args))
     from sagfree.formulation.simulation import PUSH, PUSH_DURATION
 
     push = not args.no_push
@@ -180,17 +254,72 @@ def _simulate(args) -> int:
     return 1 if moving or falling else 0
 
 
+def _view(args) -> int:
+    from sagfree.reports.view import write_view
+
+    from sagfree.scenes.usd import is_stage, load_stage_parameters
+
+    strands = _load_input(args)
+    if args.params is not None or (is_stage(args.input) and load_stage_parameters(args.input) is not None):
+        params, strands = _checked_parameters(args, strands)
+        count = len(strands) if args.max_strands is None else min(args.max_strands, len(strands))
+        strands = strands[:count]
+        parameters, status, messages = params.p[:count], params.status[:count], params.message[:count]
+        options, solver = params.problem_options, params.solver
+    else:  # optimized here, as `sagfree optimize` would with its default options
+        from sagfree.frontend.batch import optimize
+        from sagfree.scenes.catalog import SCENE_BODIES
+
+        strands = strands[: args.max_strands]
+        options = {"bodies": list(SCENE_BODIES[str(args.input)])} if str(args.input) in SCENE_BODIES else {}
+        results = optimize(strands, jobs=args.jobs, progress=not args.quiet, scheduler=args.scheduler, **options)
+        parameters, status, messages = ([r.p for r in results], [r.status for r in results],
+                                        [r.message for r in results])
+        solver = "asc"
+    output = Path(args.output) if args.output else Path(f"{Path(str(args.input)).stem}.view.html")
+    path = write_view(output, strands, parameters, options, status, messages,
+                      title=f"sagfree view: {Path(str(args.input)).name}, parameters by {solver}", jobs=args.jobs,
+                      progress=not args.quiet, scheduler=args.scheduler)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, {len(strands)} strand{'s' if len(strands) != 1 else ''})")
+    return 0
+
+
+def _checked_parameters(args, strands):
+    """(the parameters ``--params`` names or the input stage carries, ``strands``) checked against
+    each other; the material the input file does not store (an OBJ's, a .hair's moduli) and the
+    command line does not give is the material the parameters were computed for."""
+    from sagfree.scenes.catalog import stored_material
+    from sagfree.scenes.npz import MATERIAL_FIELDS
+
+    params = _load_parameters(args)
+    given = {name for name, value in _material(args).items() if value is not None}
+    strands = params.with_material(strands, [f for f in MATERIAL_FIELDS
+                                             if f not in stored_material(args.input) and f not in given])
+    for note in params.check_matches(strands, args.input):
+        print(f"note: {note}", file=sys.stderr)
+    return params, strands
+
+
 def _input_arguments(command) -> None:
-    command.add_argument("input", metavar="INPUT", help="strands file (.npz, .hair, .data, .obj) or built-in "
+    command.add_argument("input", metavar="INPUT", help="strands file (.npz, .hair, .data, .obj, OpenUSD "
+                         ".usd/.usda/.usdc) or built-in "
                          "scene name (default-groom, horizontal, flipped, helix, wavy, curly, cable, "
                          "horizontal-tip-pinned, long-hair-on-head)")
     command.add_argument("--units", default=None, choices=("m", "cm", "mm"),
-                         help="length unit of a .hair/.data/.obj file (default: cm for .hair, m otherwise)")
+                         help="length unit of a .hair/.data/.obj file (default: cm for .hair, m otherwise; a USD "
+                         "stage states its own metersPerUnit)")
     command.add_argument("--root", default=None, choices=("clamped", "pinned"),
                          help="hold every strand's root so (default: the file's, clamped for hair files)")
     command.add_argument("--tip", default=None, choices=("free", "pinned", "clamped"),
                          help="hold every strand's tip so (default: the file's, free for hair files)")
-    command.add_argument("--pin", action="append", type=int, default=None, metavar="VERTEX",
+    material = command.add_argument_group(
+        "material of a .hair, .data or .obj file's strands (default: human hair, r 50 um, E 1e9 Pa, G 4e8 Pa, "
+        "1300 kg/m^3; a .hair file's thickness gives the radius)")
+    material.add_argument("--radius", type=_number(positive=True), metavar="M", help="strand radius in m")
+    material.add_argument("--youngs-modulus", type=_number(positive=True), metavar="PA", help="Young's modulus E in Pa")
+    material.add_argument("--shear-modulus", type=_number(positive=True), metavar="PA", help="shear modulus G in Pa")
+    material.add_argument("--density", type=_number(positive=True), metavar="KG_M3", help="density in kg/m^3")
+    command.add_argument("--pin", action="append", type=_count(0), default=None, metavar="VERTEX",
                          help="also prescribe this vertex's position on every strand (repeatable)")
 
 
@@ -200,7 +329,8 @@ def _load_input(args) -> list:
     from sagfree.formulation.strand import InvalidStrand
     from sagfree.scenes import load
 
-    strands = load(args.input, args.units, keep_invalid=True)
+    strands = load(args.input, args.units, keep_invalid=True,
+                   **{name: value for name, value in _material(args).items() if value is not None})
     if args.root is None and args.tip is None and args.pin is None:
         return strands
     attached = []
@@ -213,13 +343,18 @@ def _load_input(args) -> list:
     return attached
 
 
+def _material(args) -> dict:
+    """--radius, --youngs-modulus, --shear-modulus, --density (None where not given)."""
+    return {name: getattr(args, name, None) for name in ("radius", "youngs_modulus", "shear_modulus", "density")}
+
+
 def _simulation_arguments(command) -> None:
-    command.add_argument("--steps", type=int, default=200, help="implicit-Euler time steps (default 200)")
-    command.add_argument("--dt", type=float, default=1e-3, help="time step in s (default 1e-3)")
+    command.add_argument("--steps", type=_count(1), default=200, help="implicit-Euler time steps (default 200)")
+    command.add_argument("--dt", type=_number(positive=True), default=1e-3, help="time step in s (default 1e-3)")
 
 
 def _batch_arguments(command) -> None:
-    command.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    command.add_argument("--jobs", type=_count(1), default=None, help="worker processes (default: all cores)")
     command.add_argument("--scheduler", default=None, metavar="ADDRESS",
                          help="run on a Dask cluster: a scheduler address (tcp://host:8786) or 'local' for a "
                          "LocalCluster of --jobs workers (needs dask.distributed)")
@@ -294,11 +429,11 @@ def parser() -> argparse.ArgumentParser:
                           "hair on a head, forward checks, the supplement's experiments, the derivative "
                           "verification; writes report.md and report.pdf.")
     demo.add_argument("--out", default="sagfree-demo", help="output directory (default: sagfree-demo)")
-    demo.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    demo.add_argument("--jobs", type=_count(1), default=None, help="worker processes (default: all cores)")
     demo.add_argument("--quiet", action="store_true", help="no progress bars")
     demo.add_argument("--solvers", default=",".join(SOLVERS), type=_solver_list,
                       help=f"comma-separated solvers (default: all: {','.join(SOLVERS)}); asc always runs")
-    demo.add_argument("--baseline-strands", type=int, default=None,
+    demo.add_argument("--baseline-strands", type=_count(0), default=None,
                       help="strands the baselines other than naive solve and check (default: the "
                            "study file's limits)")
     demo.set_defaults(run=_demo)
@@ -310,7 +445,7 @@ def parser() -> argparse.ArgumentParser:
     check.add_argument("--variant", action="append", choices=VARIANTS,
                        help="curvature variant to check (repeatable; default: all)")
     check.add_argument("--seed", type=int, default=0, help="seed of the random strands (default 0)")
-    check.add_argument("--vertices", type=int, default=12, help="vertices per random strand (default 12)")
+    check.add_argument("--vertices", type=_count(3), default=12, help="vertices per random strand (default 12)")
     check.set_defaults(run=_check)
 
     opt = sub.add_parser("optimize", help="solve many strands; write their parameters to a .npz file",
@@ -319,7 +454,8 @@ def parser() -> argparse.ArgumentParser:
                          "each strand's status) to OUT and a JSON summary next to it. Exit code 1 if a "
                          "strand did not converge.")
     _input_arguments(opt)
-    opt.add_argument("-o", "--output", required=True, metavar="OUT", help="parameters file to write (.npz)")
+    opt.add_argument("-o", "--output", required=True, metavar="OUT", type=_parameters_output,
+                     help="parameters file to write (.npz), or an OpenUSD stage (.usda, .usdc, .usd)")
     opt.add_argument("--solver", default="asc", choices=SOLVERS, help="solver (default asc)")
     opt.add_argument("--option", action="append", metavar="NAME=VALUE",
                      help="a solver option, e.g. tol=1e-9 or max_iterations=100 (repeatable; the common "
@@ -331,9 +467,9 @@ def parser() -> argparse.ArgumentParser:
                      help="a body the strands may rest on (repeatable): sphere:cx,cy,cz,radius, "
                      "capsule:ax,ay,az,bx,by,bz,radius (m) or an .obj mesh in m (default: the built-in "
                      "scene's, e.g. the head of long-hair-on-head; 'none': no bodies)")
-    opt.add_argument("--contact-distance", type=float, default=None, metavar="M",
+    opt.add_argument("--contact-distance", type=_number(positive=True), default=None, metavar="M",
                      help="vertices within this distance (m) of a body rest on it (default 2 strand radii)")
-    opt.add_argument("--friction", type=float, default=0.0, metavar="MU",
+    opt.add_argument("--friction", type=_number(positive=False), default=0.0, metavar="MU",
                      help="Coulomb friction coefficient between strands and bodies (default 0: frictionless)")
     opt.add_argument("--bound", action="append", type=_bound, metavar="BLOCK=LO,HI",
                      help="the box of a parameter block, e.g. bend_stiffness=1,1000 (stiffness "
@@ -352,15 +488,34 @@ def parser() -> argparse.ArgumentParser:
                          "'sagfree optimize' (implicit Euler from rest, then the static equilibrium) and "
                          "print its sag. Exit code 1 if a strand moves more than --max-sag of its length.")
     _input_arguments(sim)
-    sim.add_argument("--params", required=True, metavar="FILE", help="parameters file from 'sagfree optimize'")
+    sim.add_argument("--params", default=None, metavar="FILE",
+                     help="parameters from 'sagfree optimize': a .npz file or the OpenUSD stage it wrote (default: "
+                     "INPUT's own, when INPUT is such a stage)")
     _simulation_arguments(sim)
-    sim.add_argument("--damping", type=float, default=0.0, help="mass-proportional damping in 1/s (default 0)")
+    sim.add_argument("--damping", type=_number(positive=False), default=0.0,
+                     help="mass-proportional damping in 1/s (default 0)")
     sim.add_argument("--no-push", action="store_true",
                      help="skip the push along each strand's softest mode (5 s of simulation per strand)")
-    sim.add_argument("--max-sag", type=float, default=1e-6,
+    sim.add_argument("--max-sag", type=_number(positive=True), default=1e-6,
                      help="largest displacement, relative to strand length, that counts as still (default 1e-6)")
     _batch_arguments(sim)
     sim.set_defaults(run=_simulate)
+
+    view = sub.add_parser("view", help="an interactive 3D page of a groom: groomed, naive droop, optimized",
+                          description="Write one self-contained HTML page (plotly.js inlined: it works offline) "
+                          "showing every strand of INPUT groomed, in the static equilibrium it droops into with "
+                          "the specified parameters (naive) and in the static state of its optimized parameters, "
+                          "coloured by the bend stiffness multiplier, with the bodies the strands rest on; pick a "
+                          "strand by typing its index or clicking it. Without --params the strands are "
+                          "optimized first with asc and the default options, as 'sagfree optimize' would.")
+    _input_arguments(view)
+    view.add_argument("--params", default=None, metavar="FILE",
+                      help="parameters file from 'sagfree optimize' (default: optimize the strands with asc first)")
+    view.add_argument("-o", "--output", default=None, metavar="OUT.html",
+                      help="page to write (default: <input stem>.view.html in the current directory)")
+    view.add_argument("--max-strands", type=_count(1), default=None, metavar="N", help="show the first N strands only")
+    _batch_arguments(view)
+    view.set_defaults(run=_view)
 
     rep = sub.add_parser("report", help="a study (scenes x solvers x modes) written as report.md and report.pdf",
                          description="Solve the chosen scenes with the chosen solvers in the chosen parameter "
@@ -375,7 +530,7 @@ def parser() -> argparse.ArgumentParser:
                      help="comma-separated solvers (default: all)")
     rep.add_argument("--modes", default="element,strand", help="comma-separated stiffness modes (default: "
                      "element,strand)")
-    rep.add_argument("--max-strands", type=int, default=None, help="solve only the first N strands of each scene")
+    rep.add_argument("--max-strands", type=_count(1), default=None, help="solve only the first N strands of each scene")
     rep.add_argument("--option", action="append", metavar="[SOLVER:]NAME=VALUE",
                      help="a solver option, for one solver (osqp:max_seconds=20) or for every solver of the "
                      "study (tol=1e-9); repeatable")
@@ -400,8 +555,14 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    # warnings read as the command's own lines, not as a Python source location
+    warnings.formatwarning = lambda message, category, *rest, **kw: f"sagfree {args.command}: warning: {message}\n"
     try:
         return args.run(args)
+    except KeyboardInterrupt:  # Ctrl-C: a line, not a traceback (optimize says how to resume)
+        print(f"\nsagfree {args.command}: interrupted", file=sys.stderr)
+        return INTERRUPTED
     except (FileNotFoundError, ValueError, ImportError) as exc:  # unreadable input, a missing optional package
         print(f"sagfree {args.command}: error: {exc}", file=sys.stderr)
         return 2

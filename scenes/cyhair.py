@@ -24,8 +24,11 @@ cyHair sample files use; points (and thickness) are converted to metres.
 Decisions:
 - Radius: thickness is a diameter in file units. A strand's radius is half the mean thickness over
   its points when there is a thickness array, else half the default thickness when that is
-  positive, else ``MATERIAL["radius"]``. Keyword arguments (radius, youngs_modulus, shear_modulus,
-  density) override the file and MATERIAL. Transparency and color are read past and dropped.
+  positive, else ``MATERIAL["radius"]``. Files often store a rendering width there (a default of 1.0
+  in a cm file makes a 10 cm hair 1 cm thick): a radius above a strand's shortest edge or 1% of its
+  length gets one warning naming the file, the value and the ``radius`` override. Keyword arguments
+  (radius, youngs_modulus, shear_modulus, density) override the file and MATERIAL. Transparency and
+  color are read past and dropped.
 - The reader is strict: the file must hold exactly the arrays the header announces (truncated files
   and trailing bytes are errors), and the strands' points must add up to P. A strand with fewer than
   3 vertices, or any other defect Strand rejects, is an error naming the file and the strand index
@@ -40,7 +43,8 @@ import numpy as np
 
 from sagfree.formulation.strand import Strand
 
-from .file_io import check_material, make_strand, metres_per_unit, write_bytes
+from .file_io import (check_material, implausible_radius, make_strand, metres_per_unit, warn_implausible_radii,
+                      write_bytes)
 from .synthetic import MATERIAL
 
 HEADER = np.dtype([("signature", "S4"), ("strands", "<u4"), ("points", "<u4"), ("flags", "<u4"),
@@ -101,17 +105,22 @@ def load_hair(path, units: str = "cm", keep_invalid: bool = False, **material) -
                          f"header announces (after strand {n_strands - 1})")
 
     thickness, default = arrays.get("thickness"), float(h["thickness"])
-    strands = []
+    strands, implausible = [], []
     for k in range(n_strands):
         rows = slice(offsets[k], offsets[k + 1])
         if thickness is not None:
-            radius = 0.5 * scale * float(thickness[rows].astype(float).mean())
+            value = float(thickness[rows].astype(float).mean())
         else:
-            radius = 0.5 * scale * default if default > 0 else MATERIAL["radius"]
+            value = default if default > 0 else 2 * MATERIAL["radius"] / scale
+        radius = 0.5 * scale * value
         with np.errstate(invalid="ignore", over="ignore"):  # a corrupt file's NaN / huge values: the
             points = arrays["points"][rows].astype(float) * scale  # strand's validation names them
+        why = None if "radius" in material else implausible_radius(points, radius)
+        if why:
+            implausible.append((k, value, radius, why))
         strands.append(make_strand(points, f"{path}: strand {k}", keep_invalid,
                                    **{**MATERIAL, "radius": radius, **material}))
+    warn_implausible_radii(path, "thickness" if thickness is not None else "default thickness", implausible)
     return strands
 
 

@@ -12,7 +12,10 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from pathlib import Path
+
+import numpy as np
 
 from sagfree.formulation.strand import InvalidStrand, Strand
 
@@ -47,20 +50,60 @@ def make_strand(points, where: str, keep_invalid: bool = False, **material) -> S
         raise ValueError(f"{where}: {exc}") from None
 
 
+#: A radius from a file above this share of the strand's length is implausible (a hair of 10 cm: 1 mm).
+MAX_RADIUS_PER_LENGTH = 0.01
+
+
+def implausible_radius(points, radius: float) -> str | None:
+    """Why ``radius`` (m) is implausible for the polyline ``points`` (m), or None: above its shortest
+    edge (DER models thin rods) or above MAX_RADIUS_PER_LENGTH of its length."""
+    lengths = np.linalg.norm(np.diff(np.asarray(points, dtype=float), axis=0), axis=1)
+    if not (lengths.size and np.all(np.isfinite(lengths))):
+        return None  # the strand's own validation names what is wrong
+    if radius > lengths.min():
+        return f"{radius / lengths.min():.3g} times its shortest edge"
+    if radius > MAX_RADIUS_PER_LENGTH * lengths.sum():
+        return f"{radius / lengths.sum():.3g} of its length"
+    return None
+
+
+def warn_implausible_radii(path, field: str, found: list[tuple[int, float, float, str]]) -> None:
+    """One UserWarning for a file whose ``field`` gives strands an implausible radius: ``found`` holds
+    (strand, file value, radius in m, why) per such strand. cyHair thickness, for one, is often a
+    rendering width rather than the physical diameter (1.0 in a cm file: a 5 mm radius)."""
+    if not found:
+        return
+    shown = "; ".join(f"strand {k}: {field} {value:g} -> radius {radius:.3g} m, {why}"
+                      for k, value, radius, why in found[:3])
+    warnings.warn(f"{path}: the {field} gives {len(found)} strand(s) an implausible radius ({shown}"
+                  f"{'; ...' if len(found) > 3 else ''}); it is often a rendering width, not the physical "
+                  "diameter: give the radius instead (command line --radius M, Python radius=)",
+                  UserWarning, stacklevel=4)
+
+
 def write_bytes(path, data: bytes) -> None:
     write_atomically(path, lambda f: f.write(data))
 
 
 def write_atomically(path, write) -> None:
     """``write(binary file)`` into a temporary file next to ``path``, then rename it over ``path``:
-    readers never see a half-written file, and an interrupted write leaves the old one."""
+    readers never see a half-written file, and an interrupted write leaves the old one. The file gets
+    the permissions ``open`` would give it (0666 less the umask; mkstemp's own are 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.chmod(handle, 0o666 & ~_umask())
         with os.fdopen(handle, "wb") as f:
             write(f)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _umask() -> int:
+    """The process's umask (reading it means setting it; set back at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask

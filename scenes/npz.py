@@ -22,7 +22,10 @@ Parameters file (written by ``sagfree optimize``):
 - ``solver`` and ``problem_options`` (the Problem options as JSON, so that a reader rebuilds the same
   Problem);
 - ``attachments``: each strand's ``Strand.attachments`` (root, tip, pins, loads), which a reader
-  checks too (a strand held differently is a different problem).
+  checks too (a strand held differently is a different problem);
+- ``points`` (total vertices, 3), m: the geometry the parameters were computed for; a reader
+  compares the strands it is given vertex by vertex (ParameterFile.check_matches: equal, within
+  GEOMETRY_TOLERANCE with a note, or refused).
 Next to it, ``<name>.json`` summarizes each strand's status, message, |c|_inf, residual force,
 R(p*), iterations, stiffening, stability and time.
 
@@ -41,6 +44,10 @@ from sagfree.formulation.strand import Strand
 from .file_io import make_strand, write_atomically
 
 MATERIAL_FIELDS = ("radius", "youngs_modulus", "shear_modulus", "density")
+#: Largest vertex offset (over the strand's length) between the geometry given to ``simulate`` and the
+#: one the parameters were computed for that is still the same strand (with a note), beyond the
+#: rounding of any file format (float32: ~1e-7 L); the still-threshold of ``simulate --max-sag``.
+GEOMETRY_TOLERANCE = 1e-6
 STRANDS_VERSION = 1
 PARAMETERS_VERSION = 1
 
@@ -162,11 +169,29 @@ class ParameterFile:
     physical: dict[str, list[np.ndarray]]
     material: dict[str, np.ndarray]
     attachments: list[str] | None = None  # Strand.attachments per strand ("" for an invalid one)
+    points: list[np.ndarray] | None = None  # the geometry per strand (m; files before it: None)
 
-    def check_matches(self, strands, source: str = "the strands") -> None:
-        """Raise ValueError unless ``strands`` are those the parameters were computed for."""
+    def with_material(self, strands, fields) -> list:
+        """``strands`` with the material ``fields`` (of MATERIAL_FIELDS) the parameters were computed
+        for: what ``sagfree simulate`` does for a geometry file that stores no material (OBJ, .data)
+        or only a radius (.hair), so that the parameters are checked on the strands they were
+        computed for instead of on default material."""
+        if not fields or len(strands) != len(self.p):
+            return list(strands)  # check_matches names the mismatch
+        out = []
+        for k, strand in enumerate(strands):
+            values = {f: float(self.material[f][k]) for f in fields if f in self.material}
+            usable = isinstance(strand, Strand) and all(np.isfinite(v) and v > 0 for v in values.values())
+            out.append(strand.replaced(**values) if usable and values else strand)
+        return out
+
+    def check_matches(self, strands, source: str = "the strands") -> list[str]:
+        """Raise ValueError unless ``strands`` are those the parameters were computed for; return a
+        note per strand whose geometry differs within GEOMETRY_TOLERANCE (the file's rounding: a
+        float32 .hair of a float64 groom, 5e-8 L)."""
         if len(strands) != len(self.p):
             raise ValueError(f"the parameters are for {len(self.p)} strands, {source} has {len(strands)}")
+        notes = []
         for k, strand in enumerate(strands):
             if strand.n_vertices != self.vertex_counts[k] or not np.isclose(
                     strand.length, self.lengths[k], rtol=1e-6, equal_nan=True):
@@ -183,6 +208,28 @@ class ParameterFile:
             if self.attachments is not None and self.attachments[k] and held != self.attachments[k]:
                 raise ValueError(f"strand {k} of {source} is held with {held}; the parameters were computed "
                                  f"with {self.attachments[k]} (pass the same --root/--tip/--pin as to optimize)")
+            note = self._geometry_note(k, strand, source)
+            if note:
+                notes.append(note)
+        return notes
+
+    def _geometry_note(self, k: int, strand, source: str) -> str | None:
+        """None if strand k's vertices equal those the parameters were computed for (to 1e-12 L), a
+        note if they differ by at most GEOMETRY_TOLERANCE L, else a ValueError naming the vertex."""
+        if self.points is None or not isinstance(strand, Strand) or not np.all(np.isfinite(self.points[k])):
+            return None
+        offset = np.linalg.norm(strand.points - self.points[k], axis=1)
+        vertex, length = int(np.argmax(offset)), strand.length
+        if offset[vertex] <= 1e-12 * length:
+            return None
+        where = (f"strand {k} of {source}: vertex {vertex} is {offset[vertex]:.3g} m ({offset[vertex] / length:.2g} L) "
+                 "from where it was when the parameters were computed")
+        if offset[vertex] > GEOMETRY_TOLERANCE * length:
+            raise ValueError(f"{where}, more than {GEOMETRY_TOLERANCE:g} L: another geometry (same file and --units "
+                             "as for optimize?)")
+        return (f"{where}; within {GEOMETRY_TOLERANCE:g} L (a file's rounding, e.g. float32), so the check goes on, "
+                "but part of the sag it reports comes from this offset, amplified along the strand (a root edge "
+                "turned by it turns the whole strand)")
 
 
 def save_parameters(path, strands, results, solver: str, problem_options: dict) -> None:
@@ -202,6 +249,7 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
         "attachments": np.array([getattr(s, "attachments", "") for s in strands], dtype=str),
         "vertex_counts": counts,
         "lengths": np.array([s.length for s in strands]),
+        "points": np.concatenate([_geometry(s) for s in strands]) if strands else np.zeros((0, 3)),
         **{f: np.array([getattr(s, f, np.nan) for s in strands], dtype=float) for f in MATERIAL_FIELDS},
         "edge_offsets": np.r_[0, np.cumsum(rows["edge"])].astype(np.int64),
         "vertex_offsets": np.r_[0, np.cumsum(rows["vertex"])].astype(np.int64),
@@ -212,14 +260,21 @@ def save_parameters(path, strands, results, solver: str, problem_options: dict) 
                  for k, r in enumerate(results)]
         arrays[name] = np.concatenate(parts) if parts else np.zeros((0, *width))
     write_atomically(path, lambda f: np.savez(f, **arrays))
+    save_summary(Path(path).with_suffix(".json"), strands, results, solver, problem_options)
+
+
+def save_summary(path, strands, results, solver: str, problem_options: dict) -> None:
+    """The JSON summary of a run (each strand's status, message, residuals, stiffening, stability,
+    time), beside a parameters file or an OpenUSD stage (scenes.usd); NaN as null (strict JSON)."""
     summary = {"solver": solver, "problem_options": json.loads(json.dumps(problem_options, default=body_spec)),
                "strands": [
-        {"strand": k, "vertices": int(counts[k]), "status": r.status, "message": r.message,
+        {"strand": k, "vertices": int(s.n_vertices), "status": r.status, "message": r.message,
          "residual_inf": r.residual_inf, "max_force_N": r.max_force, "objective": r.objective,
          "time_s": r.time, "iterations": r.iterations, "stiffening": r.stiffening,
-         "min_eigenvalue_s-2": r.min_eigenvalue, "stable": r.stable} for k, r in enumerate(results)]}
+         "min_eigenvalue_s-2": r.min_eigenvalue, "stable": r.stable}
+        for k, (s, r) in enumerate(zip(strands, results))]}
     text = json.dumps(_finite_or_none(summary), indent=1, allow_nan=False)
-    write_atomically(Path(path).with_suffix(".json"), lambda f: f.write(text.encode()))
+    write_atomically(path, lambda f: f.write(text.encode()))
 
 
 def load_parameters(path) -> ParameterFile:
@@ -251,9 +306,21 @@ def load_parameters(path) -> ParameterFile:
     attachments = arrays.get("attachments")
     if attachments is not None and np.shape(attachments) != (count,):
         raise ValueError(f"{path}: 'attachments' must have one entry per strand ({count})")
+    points = arrays.get("points")
+    if points is not None:
+        if np.shape(points) != (int(counts.sum()), 3):
+            raise ValueError(f"{path}: 'points' must have shape ({int(counts.sum())}, 3), one row per vertex")
+        vertex_rows = np.r_[0, np.cumsum(counts)]
+        points = [np.asarray(points[vertex_rows[k]: vertex_rows[k + 1]], dtype=float) for k in range(count)]
     return ParameterFile([p[offsets[k]: offsets[k + 1]] for k in range(count)], status, message,
                          str(arrays.get("solver", "unknown")), options, counts, lengths, physical, material,
-                         None if attachments is None else [str(a) for a in attachments])
+                         None if attachments is None else [str(a) for a in attachments], points)
+
+
+def _geometry(strand) -> np.ndarray:
+    """A strand's (n, 3) vertices for the parameters file; NaN rows for an invalid strand's odd shape."""
+    points = np.asarray(strand.points, dtype=float)
+    return points if points.shape == (strand.n_vertices, 3) else np.full((strand.n_vertices, 3), np.nan)
 
 
 def body_spec(value) -> str:

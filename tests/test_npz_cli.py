@@ -63,10 +63,14 @@ def test_save_with_results_writes_the_parameters_simulate_reads(tmp_path, capsys
     assert main(["simulate", str(tmp_path / "groom.hair"), "--params", str(params), "--steps", "20", "--jobs", "1",
                  "--quiet"]) == 0
     assert "2/2 strands stay" in capsys.readouterr().out
-    # an OBJ file stores no radius: its strands get the default one, and simulate says so
+    # an OBJ file stores no material: simulate takes the one the parameters were computed for (the
+    # README's `sagfree simulate groom.obj --params groom.params.npz`), unless the command line gives one
     sagfree.save(tmp_path / "groom.obj", strands)
-    assert main(["simulate", str(tmp_path / "groom.obj"), "--params", str(params), "--quiet"]) == 2
-    assert "has radius 5e-05, the parameters were computed for" in capsys.readouterr().err
+    assert main(["simulate", str(tmp_path / "groom.obj"), "--params", str(params), "--steps", "20", "--jobs", "1",
+                 "--quiet", "--no-push"]) == 0
+    assert "2/2 strands stay" in capsys.readouterr().out
+    assert main(["simulate", str(tmp_path / "groom.obj"), "--params", str(params), "--quiet", "--radius", "1e-4"]) == 2
+    assert "has radius 0.0001, the parameters were computed for" in capsys.readouterr().err
 
 
 def test_bad_files_give_errors_that_name_file_and_strand(tmp_path):

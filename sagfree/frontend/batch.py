@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import time
 import traceback
 import warnings
@@ -90,7 +91,9 @@ def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int |
     seconds, the running chunks are declared hung: their strands get on_crash records and the
     workers are killed (in this process, jobs = 1, there is no watchdog).
     """
-    jobs = (os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
+    if jobs is not None and not (isinstance(jobs, (int, np.integer)) and jobs >= 1):
+        raise ValueError(f"jobs must be None (all cores) or a number of processes >= 1, got {jobs!r}")
+    jobs = (os.cpu_count() or 1) if jobs is None else int(jobs)
     starts = chunk_starts(len(items), jobs)
     chunks = [items[a:b] for a, b in zip(starts[:-1], starts[1:])]
     size = max((len(c) for c in chunks), default=1)
@@ -129,7 +132,9 @@ def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, tim
     context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
                                           else "spawn")
     results: list[list] = [None] * len(chunks)  # type: ignore[list-item]
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=context)
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(chunks)), mp_context=context,
+                               initializer=_ignore_interrupts)
+    killed = True  # until every chunk came back: then the idle workers are joined, not abandoned
     try:
         pending = {pool.submit(_run_chunk, function, c, arguments): k for k, c in enumerate(chunks)}
         while pending:
@@ -149,9 +154,23 @@ def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, tim
                 except Exception as exc:  # noqa: BLE001 - a worker died: fail its strands only
                     results[k] = [on_crash(f"worker process failed: {exc}") for _ in chunks[k]]
                 finished(k, results[k])
+        else:
+            killed = False
+    except BaseException:  # Ctrl-C (or an error here): the workers must not go on without us
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.kill()
+        raise
     finally:
-        pool.shutdown(wait=False, cancel_futures=True)
+        # abandoning live workers (wait=False) races the pool's manager thread at interpreter exit
+        # ("Exception ignored ... OSError: [Errno 9] Bad file descriptor"); idle ones are joined
+        pool.shutdown(wait=not killed, cancel_futures=True)
     return results
+
+
+def _ignore_interrupts() -> None:
+    """Worker processes leave Ctrl-C to the parent, which stops them and keeps the finished chunks
+    (one KeyboardInterrupt traceback per worker told the user nothing)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def optimize(strands, solver: str = "asc", jobs: int | None = None, solver_options: dict | None = None,

@@ -14,6 +14,7 @@ import numbers
 import numpy as np
 
 from sagfree.contract.options import COMMON
+from sagfree.formulation.parameters import check_user_bounds
 from sagfree.formulation.problem import Problem
 
 from .table import solver_entry
@@ -58,11 +59,16 @@ def _check_common_value(solver: str, name: str, value) -> None:
 
 
 def check_problem_options(problem_options: dict) -> dict:
-    """``problem_options`` if Problem accepts every name, else InvalidOption listing what it accepts."""
+    """``problem_options`` if Problem accepts every name, else InvalidOption listing what it accepts;
+    also InvalidOption for ``bounds`` that no strand could take (parameters.check_user_bounds)."""
     accepted = list(inspect.signature(Problem).parameters)[1:]  # after the strand
     for name in problem_options:
         if name not in accepted:
             raise _unknown(name, "Problem", accepted)
+    try:
+        check_user_bounds(problem_options.get("bounds"))
+    except ValueError as exc:
+        raise InvalidOption(str(exc)) from None
     return dict(problem_options)
 
 
