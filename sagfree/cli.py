@@ -557,6 +557,7 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     # warnings read as the command's own lines, not as a Python source location
+    python_format = warnings.formatwarning
     warnings.formatwarning = lambda message, category, *rest, **kw: f"sagfree {args.command}: warning: {message}\n"
     try:
         return args.run(args)
@@ -569,6 +570,8 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # output piped into a reader that stopped (| head): not an error of ours
         sys.stderr.close()
         return 0
+    finally:
+        warnings.formatwarning = python_format
 
 
 if __name__ == "__main__":
