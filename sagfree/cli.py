@@ -256,7 +256,6 @@ def _simulate(args) -> int:
 
 def _view(args) -> int:
     from sagfree.reports.view import write_view
-
     from sagfree.scenes.usd import is_stage, load_stage_parameters
 
     strands = _load_input(args)
@@ -448,11 +447,12 @@ def parser() -> argparse.ArgumentParser:
     check.add_argument("--vertices", type=_count(3), default=12, help="vertices per random strand (default 12)")
     check.set_defaults(run=_check)
 
-    opt = sub.add_parser("optimize", help="solve many strands; write their parameters to a .npz file",
+    opt = sub.add_parser("optimize", help="solve many strands; write their parameters to a .npz file or a USD stage",
                          description="Choose rest shape and stiffness so that every strand of INPUT is "
                          "in static equilibrium; write the parameters (per block, in physical units, and "
-                         "each strand's status) to OUT and a JSON summary next to it. Exit code 1 if a "
-                         "strand did not converge.")
+                         "each strand's status) to OUT (.npz, or a copy of an OpenUSD input stage with "
+                         "them as sagfree: primvars) and a JSON summary next to it. Ctrl-C keeps the "
+                         "finished strands for --resume. Exit code 1 if a strand did not converge.")
     _input_arguments(opt)
     opt.add_argument("-o", "--output", required=True, metavar="OUT", type=_parameters_output,
                      help="parameters file to write (.npz), or an OpenUSD stage (.usda, .usdc, .usd)")
