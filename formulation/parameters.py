@@ -91,16 +91,21 @@ def check_user_bounds(bounds) -> None:
         if name not in (*BLOCKS, STRAND_BLOCK, CONTACT_BLOCK):
             raise ValueError(f"bounds given for {name!r}, which is no parameter block; blocks: "
                              f"{', '.join((*BLOCKS, STRAND_BLOCK, CONTACT_BLOCK))}, or {' / '.join(BUDGETS)}")
-        try:
-            lo, hi = value
-        except (TypeError, ValueError):
-            raise ValueError(f"bounds of {name!r} must be a pair (lower, upper), got {value!r}") from None
         sides = [_block_values(name, what, side, (np.size(side),)) for what, side in
-                 (("lower bound", lo), ("upper bound", hi))]
+                 zip(("lower bound", "upper bound"), _pair(name, value))]
         if not all(np.all(np.isfinite(side)) for side in sides):
             raise ValueError(f"bounds of {name!r} must be finite, got {value!r}")
         if sides[0].size == sides[1].size == 1 and sides[0][0] > sides[1][0]:
             raise ValueError(f"bounds of {name!r}: lower bound {sides[0][0]:g} above upper bound {sides[1][0]:g}")
+
+
+def _pair(name: str, value) -> tuple:
+    """The (lower, upper) of a user's bounds of block ``name``."""
+    try:
+        lo, hi = value
+    except (TypeError, ValueError):
+        raise ValueError(f"bounds of {name!r} must be a pair (lower, upper), got {value!r}") from None
+    return lo, hi
 
 
 def _block_values(name: str, what: str, value, shape: tuple) -> np.ndarray:
@@ -263,10 +268,7 @@ class ParameterLayout:
     def _apply_user(self, bounds: dict, weights) -> None:
         for name, value in (bounds or {}).items():
             ix = self._block_index(name, "bounds")
-            try:
-                lo, hi = value
-            except (TypeError, ValueError):
-                raise ValueError(f"bounds of {name!r} must be a pair (lower, upper), got {value!r}") from None
+            lo, hi = _pair(name, value)
             self.lower[ix] = _block_values(name, "lower bound", lo, ix.shape)
             self.upper[ix] = _block_values(name, "upper bound", hi, ix.shape)
         for name, value in (weights or {}).items():

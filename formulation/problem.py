@@ -504,7 +504,7 @@ class Problem:
         order so the reduced Hessian stays banded."""
         vertices = self.contacts.vertices[resting]
         forces = self.contact_forces(p)[vertices]
-        normal_force = self.normal_forces(p)[resting]
+        normal_force = np.einsum("kd,kd->k", forces, self.contacts.normals[resting])
         slip = np.abs(np.einsum("kjd,kd->kj", self.contacts.tangents[resting], forces)).sum(axis=1)
         sticks = (self.friction > 0) & (slip < self.friction * normal_force * (1 - 1e-9))
         positions = dofs.position_index(self.n_vertices)[vertices]               # (m, 3)

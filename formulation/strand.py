@@ -112,7 +112,7 @@ class Strand:
     def thickness(self) -> tuple[int, float]:
         """(edge, radius over its length) of the shortest edge: how far the strand is from a thin rod
         (refused above MAX_RADIUS_PER_EDGE; a batch warns above 1)."""
-        return _thickness(self.points, self.radius)
+        return radius_per_edge(self.points, self.radius)
 
     @property
     def length(self) -> float:
@@ -147,7 +147,7 @@ def _check_thin(points: np.ndarray, radius: float) -> None:
     Gauss-Newton steps for a 1 mm, 50-vertex strand of radius 5 mm). Radii of a few edge lengths (a
     2000-vertex hair, 1.4x) are kept: the model is coarse there but solvable.
     """
-    worst, ratio = _thickness(points, radius)
+    worst, ratio = radius_per_edge(points, radius)
     if ratio > MAX_RADIUS_PER_EDGE:
         raise ValueError(
             f"radius {radius:g} m is {ratio:.3g} times the length of edge {worst} (vertices {worst}-"
@@ -156,7 +156,8 @@ def _check_thin(points: np.ndarray, radius: float) -> None:
             "the strand with fewer vertices")
 
 
-def _thickness(points: np.ndarray, radius: float) -> tuple[int, float]:
+def radius_per_edge(points: np.ndarray, radius: float) -> tuple[int, float]:
+    """(shortest edge, radius over its length) of the polyline ``points`` (Strand.thickness)."""
     lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
     edge = int(np.argmin(lengths))
     with np.errstate(over="ignore", divide="ignore"):

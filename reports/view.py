@@ -33,6 +33,7 @@ from __future__ import annotations
 import html
 import json
 import traceback
+from collections import Counter
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -44,6 +45,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import equilibrium
 from sagfree.frontend.batch import map_strands
 from sagfree.frontend.options import check_problem_options
+from sagfree.scenes.file_io import write_bytes
 
 from .view_page import page
 
@@ -161,7 +163,7 @@ def write_view(path, strands, parameters, problem_options: dict | None = None, s
     text = page(page_data(strands, states, bodies, list(status), messages, title,
                           options.get("stiffness", "element")))
     path = Path(path)
-    path.write_text(text, encoding="utf-8")
+    write_bytes(path, text.encode("utf-8"))  # atomic, as every file sagfree writes
     return path
 
 
@@ -237,10 +239,7 @@ def _finite(value: float):
 
 
 def _summary(status: list[str]) -> str:
-    counts: dict[str, int] = {}
-    for s in status:
-        counts[s] = counts.get(s, 0) + 1
-    return ", ".join(f"{n} {s}" for s, n in counts.items()) or "none"
+    return ", ".join(f"{n} {s}" for s, n in Counter(status).items()) or "none"
 
 
 #: resolution of the drawn spheres and capsules (rings along the axis, points around it)

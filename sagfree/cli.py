@@ -95,27 +95,24 @@ def _bound(text: str) -> tuple[str, object]:
 
 def _count(minimum: int):
     """argparse type: an integer >= minimum."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
-        return value
-    return parse
+    return _checked(int, lambda v: v >= minimum, f"at least {minimum}")
 
 
 def _number(positive: bool):
     """argparse type: a finite number, > 0 if ``positive`` else >= 0."""
-    def parse(text: str) -> float:
+    return _checked(float, (lambda v: 0 < v < float("inf")) if positive else (lambda v: 0 <= v < float("inf")),
+                    "positive and finite" if positive else "non-negative and finite")
+
+
+def _checked(kind, accepts, wanted: str):
+    """argparse type: ``kind(text)`` where ``accepts`` it, else a usage error saying what is ``wanted``."""
+    def parse(text: str):
         try:
-            value = float(text)
+            value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (value < float("inf") and (value > 0 if positive else value >= 0)):
-            raise argparse.ArgumentTypeError(f"must be {'positive' if positive else 'non-negative'} and "
-                                             f"finite, got {text}")
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if not accepts(value):
+            raise argparse.ArgumentTypeError(f"must be {wanted}, got {text}")
         return value
     return parse
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sagfree.formulation.strand import InvalidStrand, Strand
+from sagfree.formulation.strand import InvalidStrand, Strand, radius_per_edge
 
 from .synthetic import MATERIAL
 
@@ -57,13 +57,15 @@ MAX_RADIUS_PER_LENGTH = 0.01
 def implausible_radius(points, radius: float) -> str | None:
     """Why ``radius`` (m) is implausible for the polyline ``points`` (m), or None: above its shortest
     edge (DER models thin rods) or above MAX_RADIUS_PER_LENGTH of its length."""
-    lengths = np.linalg.norm(np.diff(np.asarray(points, dtype=float), axis=0), axis=1)
-    if not (lengths.size and np.all(np.isfinite(lengths))):
+    points = np.asarray(points, dtype=float)
+    if len(points) < 2 or not np.all(np.isfinite(points)):
         return None  # the strand's own validation names what is wrong
-    if radius > lengths.min():
-        return f"{radius / lengths.min():.3g} times its shortest edge"
-    if radius > MAX_RADIUS_PER_LENGTH * lengths.sum():
-        return f"{radius / lengths.sum():.3g} of its length"
+    _, per_edge = radius_per_edge(points, radius)
+    if per_edge > 1.0:
+        return f"{per_edge:.3g} times its shortest edge"
+    length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    if radius > MAX_RADIUS_PER_LENGTH * length:
+        return f"{radius / length:.3g} of its length"
     return None
 
 

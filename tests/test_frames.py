@@ -46,6 +46,9 @@ def test_transport_to_same_shape_is_identity_and_twist_accumulates(rng):
         nxt = fr.transport_frames(current, x + (k / 40) * (coil - coil[0]))
         assert_orthonormal(nxt)
         assert np.all(np.abs(nxt.reference_twist - current.reference_twist) < 0.3)
+        # the compiled update is the readable formula of reference_twist
+        assert np.allclose(nxt.reference_twist, fr.reference_twist(nxt.tangents, nxt.a1, current.reference_twist),
+                           rtol=0, atol=1e-12)
         direct = fr.signed_angle(fr.parallel_transport(nxt.tangents[:-1], nxt.tangents[1:], nxt.a1[:-1]),
                                  nxt.a1[1:], nxt.tangents[1:])
         assert np.allclose(np.angle(np.exp(1j * (nxt.reference_twist - direct))), 0, atol=1e-10)

@@ -5,8 +5,8 @@ import numba
 import numpy as np
 
 from .band import csc_arrays, dense_columns
-from .timing import LINEAR_ALGEBRA, timed
 from .cholesky import factor_active, solve_factored
+from .timing import LINEAR_ALGEBRA, timed
 
 
 class NormalFactor:
