@@ -46,38 +46,51 @@ def summary(results) -> dict:
 #: The code before issue 21's changes (the revision benchmarks/RESULTS.md compares against).
 BEFORE = "61771bb"
 
-#: Run in a subprocess inside the checkout of --before: the groom table's measurement, as JSON.
+#: Run in a subprocess with the install of --before: the groom table's measurement, as JSON (with
+#: the file the solvers came from, to check that the run used that install).
 _GROOM_SCRIPT = """
 import json, sys, time
 import sagfree
+import sagfree.solvers
 strands, vertices, jobs = map(int, sys.argv[1:4])
 groom = sagfree.scenes.groom(strands, vertices, seed=0)
 sagfree.optimize(groom[:jobs], jobs=1)
 start = time.perf_counter()
 results = sagfree.optimize(groom, jobs=jobs)
 wall = time.perf_counter() - start
-print(json.dumps(dict(wall=wall, converged=sum(r.status == "converged" for r in results),
-                      stable=sum(bool(r.stable) for r in results), strands=len(results))))
+print(json.dumps(dict(wall=wall, code=sagfree.solvers.__file__, strands=len(results),
+                      converged=sum(r.status == "converged" for r in results),
+                      stable=sum(bool(r.stable) for r in results))))
 """
 
 
 def groom_at_revision(revision: str, strands: int, vertices: int, jobs: int) -> dict | None:
     """The groom measurement of ``_GROOM_SCRIPT`` run by the code at git ``revision`` (a temporary
-    worktree), or None outside a git checkout."""
+    worktree, installed by pip into a folder of its own that the run's PYTHONPATH puts first), or
+    None outside a git checkout.
+
+    Installed, not run from the worktree: with PYTHONPATH=worktree, ``sagfree`` came from the
+    worktree but its subpackages (folders beside sagfree/ in the source tree) from the editable
+    install of this checkout, so "before" mixed the two revisions' code."""
     root = Path(__file__).resolve().parents[1]
     if not revision or not (root / ".git").exists():
         return None
     with tempfile.TemporaryDirectory(prefix="sagfree-before-") as where:
-        checkout = Path(where) / "src"
+        checkout, site = Path(where) / "src", Path(where) / "site"
         subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", "-q", str(checkout), revision],
                        check=True)
         try:
+            subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site),
+                            str(checkout)], check=True, capture_output=True, text=True)
             out = subprocess.run([sys.executable, "-c", _GROOM_SCRIPT, str(strands), str(vertices), str(jobs)],
-                                 cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, check=True,
+                                 cwd=where, env={**os.environ, "PYTHONPATH": str(site)}, check=True,
                                  capture_output=True, text=True).stdout
         finally:
             subprocess.run(["git", "-C", str(root), "worktree", "remove", "--force", str(checkout)], check=False)
-    return json.loads(out.strip().splitlines()[-1])
+    measured = json.loads(out.strip().splitlines()[-1])
+    if not measured["code"].startswith(str(site)):
+        raise RuntimeError(f"the run of {revision} imported {measured['code']}, not its own install")
+    return measured
 
 
 def groom_table(strands: int, vertices: int, jobs: int, before: str) -> None:

@@ -45,6 +45,7 @@ block's size; absolute values, so p0 must lie inside), plus ``curvature_budget``
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -320,15 +321,22 @@ class ParameterLayout:
 
     def locate(self, index: int) -> tuple[str, str]:
         """(block, element) of entry ``index`` of p, e.g. ("bend_stiffness", "vertex 3")."""
-        for block, ix in self.blocks.items():
-            hits = np.flatnonzero(ix == index)
-            if hits.size:
-                k = int(hits[0])
-                if block == STRAND_BLOCK:
-                    return block, "strand"
-                if block == CONTACT_BLOCK:
-                    return block, f"vertex {self.contacts[k * self.contacts.size // ix.size]}"
-                if block in _EDGE_BLOCKS:
-                    return block, f"edge {k}"
-                return block, f"vertex {k // _VERTEX_BLOCKS[block] + 1}"
-        raise IndexError(f"p has no entry {index}")
+        names, owner, within = self._owners
+        if not 0 <= index < self.size or owner[index] < 0:
+            raise IndexError(f"p has no entry {index}")
+        block, k = names[owner[index]], int(within[index])
+        if block == STRAND_BLOCK:
+            return block, "strand"
+        if block == CONTACT_BLOCK:
+            return block, f"vertex {self.contacts[k * self.contacts.size // self.blocks[block].size]}"
+        if block in _EDGE_BLOCKS:
+            return block, f"edge {k}"
+        return block, f"vertex {k // _VERTEX_BLOCKS[block] + 1}"
+
+    @functools.cached_property
+    def _owners(self) -> tuple[list[str], np.ndarray, np.ndarray]:
+        """(block names, each entry's block number (-1: none), its place in its block) for ``locate``."""
+        owner, within = np.full(self.size, -1), np.zeros(self.size, dtype=int)
+        for number, ix in enumerate(self.blocks.values()):
+            owner[ix], within[ix] = number, np.arange(ix.size)
+        return list(self.blocks), owner, within

@@ -37,6 +37,8 @@ HALF_BANDWIDTH = 10
 STABILITY_FRACTION = 0.1
 #: stability results kept per problem (Problem.stability)
 STABILITY_MEMO = 4
+#: ... and of forces and dc/dp at q* (Problem.forces, Problem.strand_jacobian)
+AT_REST_MEMO = 2
 
 
 class Problem:
@@ -164,6 +166,11 @@ class Problem:
         # loop and the final Result all ask for the same p (shared with with_lower_bounds twins: the
         # eigenvalue does not depend on the bounds)
         self._stability_memo: dict[bytes, tuple[float, np.ndarray]] = {}
+        # the forces and dc/dp at q* of the last few p (a solver's convergence test, its KKT
+        # confirmation and its Result evaluate the same p: 44% of a groom strand's force evaluations
+        # repeated the previous one) and ``unbounded`` quantities; shared with with_lower_bounds twins
+        # like the stability memo. The Jacobians are shared objects: their users only read them
+        self._memos: dict[str, dict] = {"forces": {}, "jacobian": {}, "unbounded": {}}
 
     def with_options(self, **changes) -> "Problem":
         """The same strand's Problem with some constructor options changed."""
@@ -176,6 +183,12 @@ class Problem:
         twin.layout = copy.copy(self.layout)
         twin.layout.lower = np.minimum(np.maximum(self.layout.lower, lower), self.layout.upper)
         return twin
+
+    def unbounded(self, key: str, build):
+        """``build()``, computed once for this problem and its ``with_lower_bounds`` twins: for the
+        solvers' quantities that do not depend on the bounds (asc's least rest-shape change at p0,
+        which every solve of the stabilization's floored twins would otherwise factor again)."""
+        return _memo(self._memos["unbounded"], key, build)
 
     @functools.cached_property
     def stability_margin(self) -> float:
@@ -293,8 +306,15 @@ class Problem:
         lumped masses plus the strand's loads; at q* (q and frames None) plus the bodies' supports
         of p (``contact_forces``). Away from q* the supports of p mean nothing: the simulation
         has its own contact model (contact module)."""
-        f = self.external_forces - self.elastic_gradient(p, q, frames)
-        if q is None and frames is None and self.contacts.count:
+        if q is None and frames is None:
+            return _memo(self._memos["forces"], self.check_parameters(p).tobytes(),
+                         lambda: self._forces_at_rest(p), AT_REST_MEMO).copy()
+        return self.external_forces - self.elastic_gradient(p, q, frames)
+
+    def _forces_at_rest(self, p) -> np.ndarray:
+        """``forces(p)`` at q*, uncached."""
+        f = self.external_forces - self.elastic_gradient(p)
+        if self.contacts.count:
             f[dofs.position_index(self.n_vertices)] += self.contact_forces(p)
         return f
 
@@ -326,6 +346,13 @@ class Problem:
         (stencils.FixedShapeFunctions), and a support's column its direction (contact.Contacts.directions);
         at another state q (frames as in ``energy``), the derivative of c(q, p) = D^-1 S f(q, p) there
         (the best effort's static sag, solvers.least_sag)."""
+        if q is None and frames is None:
+            return _memo(self._memos["jacobian"], self.check_parameters(p).tobytes(),
+                         lambda: self._strand_jacobian(p, q, frames), AT_REST_MEMO)
+        return self._strand_jacobian(p, q, frames)
+
+    def _strand_jacobian(self, p, q, frames) -> StrandJacobian:
+        """``strand_jacobian``, uncached."""
         edge, vertex = self.stencil_inputs(p, q, frames)
         if q is None and frames is None:
             kinematics, transposed = self.kinematics_at_rest

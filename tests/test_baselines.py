@@ -33,7 +33,7 @@ def dense_kkt_step(problem, p):
 def test_constrained_step_matches_a_dense_solve(stiffness, rng):
     """linalg.saddle.constrained_step (band LU of the interleaved saddle system; SuperLU where the strand
     multiplier's column is dense) against numpy on the same system, some variables on bounds."""
-    from sagfree.linalg.saddle import constrained_step
+    from sagfree.linalg.saddle import SaddleFactor, constrained_step
     problem = sagfree.Problem(sagfree.scenes.helix(n=25), stiffness=stiffness)
     p = problem.p0 + 0.3 * rng.random(problem.n_parameters) * (problem.upper - problem.p0)
     free = np.ones(problem.n_parameters, dtype=bool)
@@ -49,6 +49,17 @@ def test_constrained_step_matches_a_dense_solve(stiffness, rng):
     assert np.abs(K @ x - b).max() <= 1e-12 * (np.abs(K) @ np.abs(x) + np.abs(b)).max()  # backward stable
     # both pivoted LUs of a system whose columns span ~1e8 in scale: agreement to rounding
     assert np.allclose(x, reference, rtol=1e-6, atol=1e-9 * np.abs(reference).max())
+    # the factors kept for another right-hand side (the SQP step's correction) solve it as well
+    factor = SaddleFactor(J, w, free)
+    g2, c2 = rng.standard_normal(problem.n_parameters), rng.standard_normal(c.size)
+    d2, lam2 = factor.solve(g2, c2)
+    again = np.linalg.solve(K, -np.concatenate([g2[F], c2]))
+    assert np.all(d2[~free] == 0.0)
+    assert np.allclose(np.concatenate([d2[F], lam2]), again, rtol=1e-6, atol=1e-9 * np.abs(again).max())
+    # too few free variables for the rows: singular, and constrained_step says so with None
+    few = np.zeros(problem.n_parameters, dtype=bool)
+    few[: c.size - 1] = True
+    assert SaddleFactor(J, w, few).singular and constrained_step(J, w, g, c, few) is None
 
 
 def test_kkt_measure_frees_near_bound_variables_when_too_few_are_free():

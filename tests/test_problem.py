@@ -173,6 +173,43 @@ def test_variants_agree_when_frames_are_not_flipped(rng):
     assert np.allclose(energies, energies[0], rtol=1e-4)
 
 
+def test_memoized_forces_and_jacobians_are_the_evaluations_and_safe_to_modify(rng):
+    """Problem.forces and strand_jacobian at q* remember their last few p (and share them with the
+    stabilization's twins): what they return equals a fresh evaluation, a caller modifying the
+    returned forces does not change the next answer, and a new p is evaluated anew."""
+    problem = sagfree.Problem(sagfree.scenes.groom(2, 30, seed=4)[1])
+    p = problem.p0 + 0.1 * rng.random(problem.n_parameters) * (problem.upper - problem.p0)
+    fresh = sagfree.Problem(problem.strand)
+    first = problem.forces(p)
+    first[:] = np.nan  # a caller writing into its copy
+    assert np.array_equal(problem.forces(p), fresh.forces(p))
+    assert np.array_equal(problem.residual(p), fresh.residual(p))
+    assert np.array_equal(problem.strand_jacobian(p).data, fresh.strand_jacobian(p).data)
+    other = p.copy()
+    other[0] += 1e-3 * (problem.upper[0] - p[0])
+    assert not np.array_equal(problem.residual(other), problem.residual(p))
+    assert np.array_equal(problem.residual(other), fresh.residual(other))
+    twin = problem.with_lower_bounds(problem.lower)
+    assert twin.strand_jacobian(p) is problem.strand_jacobian(p)  # shared, not evaluated again
+    assert twin.unbounded("start", lambda: "twin's") == problem.unbounded("start", lambda: "again") == "twin's"
+    # away from q* nothing is remembered: another state gives other forces
+    q = problem.q_star + 1e-4 * rng.standard_normal(problem.q_star.size)
+    assert not np.array_equal(problem.forces(p, q), problem.forces(p))
+
+
+def test_locate_names_every_entry_of_p():
+    problem = sagfree.Problem(sagfree.scenes.horizontal(n=6), bodies=())
+    layout = problem.layout
+    named = {index: layout.locate(index) for index in range(layout.size)}
+    for block, ix in layout.blocks.items():
+        assert all(named[int(i)][0] == block for i in ix)
+    assert named[int(layout.blocks["rest_length"][2])] == ("rest_length", "edge 2")
+    assert named[int(layout.blocks["rest_curvature"][3])] == ("rest_curvature", "vertex 2")
+    assert named[int(layout.blocks["bend_stiffness"][0])] == ("bend_stiffness", "vertex 1")
+    with pytest.raises(IndexError):
+        layout.locate(layout.size)
+
+
 def test_parameter_layout_and_physical_values():
     strand = sagfree.scenes.horizontal(n=10)
     pb = sagfree.Problem(strand)

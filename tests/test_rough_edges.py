@@ -27,7 +27,8 @@ def sagfree_command(*args, cwd, **kwargs):
 
 
 def test_ctrl_c_stops_cleanly_keeps_the_solved_strands_and_prints_the_resume_command(tmp_path):
-    sagfree.save(tmp_path / "g.npz", sagfree.scenes.groom(400, 40, seed=2))
+    # enough strands that the batch is far from done when its first chunk is on disk (~0.6 s for 400)
+    sagfree.save(tmp_path / "g.npz", sagfree.scenes.groom(1500, 40, seed=2))
     # a terminal's Ctrl-C signals the whole foreground process group: the parent and its workers
     run = sagfree_command("optimize", "g.npz", "-o", "out.npz", "--jobs", "2", cwd=tmp_path, start_new_session=True)
     partial, deadline = tmp_path / "out.npz.partial", time.time() + 120
@@ -43,7 +44,7 @@ def test_ctrl_c_stops_cleanly_keeps_the_solved_strands_and_prints_the_resume_com
     assert subprocess.run(["pgrep", "-f", "-g", str(run.pid)], capture_output=True).stdout == b""  # no orphan workers
     resumed = sagfree_command("optimize", "g.npz", "-o", "out.npz", "--jobs", "2", "--resume", "--quiet", cwd=tmp_path)
     out, err = resumed.communicate(timeout=300)
-    assert resumed.returncode == 0 and "resuming:" in out and "converged 400" in out, out + err
+    assert resumed.returncode == 0 and "resuming:" in out and "converged 1500" in out, out + err
 
 
 @pytest.mark.parametrize("mask", [0o022, 0o077])

@@ -17,51 +17,76 @@ from .band import csc_arrays, dense_columns
 from .timing import LINEAR_ALGEBRA, timed
 
 
-@timed(LINEAR_ALGEBRA)
-def constrained_step(J, w, gradient, c, free):
-    """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] with W = diag(w), d = 0
-    off F; None if the system is singular (J_F rank deficient: more constraints than free directions).
+class SaddleFactor:
+    """The factored saddle system [[W_F, J_F^T], [J_F, 0]] of a Jacobian J, weights w and free set F
+    (W = diag(w)), for several right-hand sides: ``solve(gradient, c)`` is one pair of triangular
+    solves. ``singular`` when the system is (J_F rank deficient: more constraints than free
+    directions); then ``solve`` must not be called.
 
-    Solved by an LU with partial pivoting of the whole system. The variables off F are kept as
+    Factored by an LU with partial pivoting of the whole system. The variables off F are kept as
     unknowns with the rows d_j = 0, so the system's pattern is J's whatever F is, and its unknowns
     are interleaved along the strand (each parameter next to the rows its column touches,
     _saddle_order): the system is then a band (half-width 25 on a 100-vertex element strand) that
-    LAPACK's dgbsv factors in O(n), about 2.5 times faster than SuperLU on the free variables'
-    system. A column that fills most rows (the strand multiplier of ``stiffness="strand"``) would
-    make the band full: then SuperLU on the system of F alone, assembled in compressed columns.
+    LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU on the free variables'
+    system; a solve (dgbtrs) costs about a tenth of the factorization. A column that fills most rows
+    (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
+    system of F alone, assembled in compressed columns.
     """
-    if free.sum() < J.shape[0]:  # J_F cannot have full row rank
-        return None
-    indptr, indices, data = csc_arrays(J)
-    rows, n = J.shape
-    w = np.asarray(w, dtype=float)
-    rhs = -np.concatenate([np.where(free, gradient, 0.0), c])
-    order = _saddle_order(indptr, indices, rows)
-    if order is not None:
-        position, half = order
-        band = _saddle_band(indptr, indices, data, w, free, position, half)
-        permuted = np.empty_like(rhs)
-        permuted[position] = rhs
-        _, _, solution, info = scipy.linalg.lapack.dgbsv(half, half, band, permuted, overwrite_ab=True,
-                                                         overwrite_b=True)
-        if info != 0:
-            return None
-        solution = solution[position]
-    else:
-        row_csr = sp.csc_matrix((data, indices, indptr), shape=J.shape).tocsr()
-        size = int(free.sum())
-        inside = np.cumsum(free) - 1  # index of each free variable in d_F
-        system = sp.csc_matrix(_kkt_system(indptr, indices, data, row_csr.indptr.astype(np.int64),
-                                           row_csr.indices.astype(np.int64), row_csr.data, w, free, inside,
-                                           size), shape=(size + rows, size + rows))
-        try:
-            reduced = sp.linalg.splu(system).solve(np.concatenate([rhs[:n][free], rhs[n:]]))
-        except RuntimeError:
-            return None
-        solution = np.zeros(n + rows)
-        solution[np.flatnonzero(free)] = reduced[:size]
-        solution[n:] = reduced[size:]
-    return np.where(free, solution[:n], 0.0), solution[n:]
+
+    @timed(LINEAR_ALGEBRA)
+    def __init__(self, J, w, free):
+        self.free = np.asarray(free, dtype=bool)
+        self.rows, self.n = J.shape
+        self.singular = bool(self.free.sum() < self.rows)  # J_F cannot have full row rank
+        if self.singular:
+            return
+        indptr, indices, data = csc_arrays(J)
+        w = np.asarray(w, dtype=float)
+        order = _saddle_order(indptr, indices, self.rows)
+        self._band = order is not None
+        if self._band:
+            self._position, self._half = order
+            band = _saddle_band(indptr, indices, data, w, self.free, self._position, self._half)
+            self._lu, self._pivots, info = scipy.linalg.lapack.dgbtrf(band, self._half, self._half,
+                                                                     overwrite_ab=True)
+            self.singular = info != 0
+        else:
+            row_csr = sp.csc_matrix((data, indices, indptr), shape=J.shape).tocsr()
+            size = int(self.free.sum())
+            inside = np.cumsum(self.free) - 1  # index of each free variable in d_F
+            system = sp.csc_matrix(_kkt_system(indptr, indices, data, row_csr.indptr.astype(np.int64),
+                                               row_csr.indices.astype(np.int64), row_csr.data, w, self.free,
+                                               inside, size), shape=(size + self.rows, size + self.rows))
+            try:
+                self._lu = sp.linalg.splu(system)
+            except RuntimeError:
+                self.singular = True
+
+    @timed(LINEAR_ALGEBRA)
+    def solve(self, gradient, c):
+        """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c], d = 0 off F."""
+        rhs = -np.concatenate([np.where(self.free, gradient, 0.0), c])
+        n = self.n
+        if self._band:
+            permuted = np.empty_like(rhs)
+            permuted[self._position] = rhs
+            solution, _ = scipy.linalg.lapack.dgbtrs(self._lu, self._half, self._half, permuted, self._pivots,
+                                                     overwrite_b=True)
+            solution = solution[self._position]
+        else:
+            reduced = self._lu.solve(np.concatenate([rhs[:n][self.free], rhs[n:]]))
+            solution = np.zeros(n + self.rows)
+            size = reduced.size - self.rows
+            solution[np.flatnonzero(self.free)] = reduced[:size]
+            solution[n:] = reduced[size:]
+        return np.where(self.free, solution[:n], 0.0), solution[n:]
+
+
+def constrained_step(J, w, gradient, c, free):
+    """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] with W = diag(w), d = 0
+    off F; None if the system is singular (SaddleFactor, factored for this one solve)."""
+    factor = SaddleFactor(J, w, free)
+    return None if factor.singular else factor.solve(gradient, c)
 
 
 @timed(LINEAR_ALGEBRA)
