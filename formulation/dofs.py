@@ -6,6 +6,8 @@ Also: which DOFs the attachments prescribe, external forces on lumped masses, an
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 STANDARD_GRAVITY = 9.81  # m/s^2, the weight scale when the given gravity is zero
@@ -24,9 +26,12 @@ def interleave(points: np.ndarray, theta: np.ndarray) -> np.ndarray:
     return q
 
 
+@functools.lru_cache(maxsize=64)
 def position_index(n_vertices: int) -> np.ndarray:
-    """(n, 3) indices of the vertex positions in q."""
-    return 4 * np.arange(n_vertices)[:, None] + np.arange(3)
+    """(n, 3) indices of the vertex positions in q (shared per n, read-only: index with it only)."""
+    index = 4 * np.arange(n_vertices)[:, None] + np.arange(3)
+    index.flags.writeable = False
+    return index
 
 
 def theta_index(n_vertices: int) -> np.ndarray:

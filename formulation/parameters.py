@@ -48,6 +48,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 #: the rest-shape blocks and the per-element stiffness blocks; BLOCKS is their order in p
@@ -135,9 +136,17 @@ class SlotMap:
         self._factor = self.coefficient.ravel()[self._linked]
 
     def evaluate(self, p: np.ndarray) -> np.ndarray:
-        out = self.constant.copy()
-        out.ravel()[self._linked] += self._factor * p[self._source]
-        return out
+        return _evaluate_slots(self.constant, self._linked, self._factor, self._source, p)
+
+
+@numba.njit(cache=True)
+def _evaluate_slots(constant, linked, factor, source, p):  # pragma: no cover - compiled
+    """SlotMap.evaluate in one compiled call (it runs for every residual and Jacobian)."""
+    out = constant.copy()
+    flat = out.ravel()
+    for k in range(linked.size):
+        flat[linked[k]] += factor[k] * p[source[k]]
+    return out
 
 
 class ParameterLayout:

@@ -261,3 +261,22 @@ def test_least_squares_multipliers_minimize_the_scaled_lagrangian_gradient(dense
     reference = np.linalg.lstsq(A.T, -r, rcond=None)[0]
     assert np.linalg.norm(A.T @ reference + r) > 0.1 * np.linalg.norm(r)  # no exact multipliers
     assert np.allclose(lam, reference, rtol=1e-8, atol=1e-10 * np.abs(reference).max())
+
+
+def test_scaled_projected_gradient_is_the_formula_with_nan_kept(rng):
+    """The compiled measure equals ||clip(p - g / h, lower, upper) - p||_inf as numpy computes it, and a
+    NaN in the gradient makes it NaN (never stationary), on bounds, infinities and empty vectors."""
+    from sagfree.contract.optimality import scaled_projected_gradient
+    for trial in range(200):
+        n = int(rng.integers(0, 50))
+        p, g, h = rng.random(n), rng.standard_normal(n) * 10 ** rng.uniform(-5, 5, n), rng.random(n) + 1e-3
+        lower, upper = p - rng.random(n) * 0.1, p + rng.random(n) * 0.1
+        lower[::3], upper[::5] = p[::3], p[::5]
+        if n and trial % 10 == 0:
+            g[rng.integers(n)] = np.nan
+        if n and trial % 13 == 0:
+            g[rng.integers(n)] = np.inf
+        with np.errstate(invalid="ignore"):
+            formula = float(np.abs(np.clip(p - g / h, lower, upper) - p).max(initial=0.0))
+        measured = scaled_projected_gradient(p, g, h, lower, upper)
+        assert measured == formula or (np.isnan(formula) and np.isnan(measured)), (trial, formula, measured)

@@ -14,6 +14,8 @@ its largest eigenvalue theta = 1 / (lambda_min + tau), stopped when the Ritz res
 """
 from __future__ import annotations
 
+import functools
+
 import numba
 import numpy as np
 
@@ -38,9 +40,17 @@ def smallest_eigenpair(band: np.ndarray) -> tuple[float, np.ndarray]:
     shift = 0.0
     while (factor := band_cholesky(band, shift)) is None:  # ends: a large shift makes it diagonally dominant
         shift = max(10.0 * shift, start)
-    v0 = np.random.default_rng(0).standard_normal(n)
+    v0 = _start_vector(n)
     theta, vector = _largest_inverse_eigenpair(factor, v0, min(MAX_STEPS, n), TOLERANCE)
     return float(1.0 / theta - shift), vector / np.linalg.norm(vector)
+
+
+@functools.lru_cache(maxsize=16)
+def _start_vector(n: int) -> np.ndarray:
+    """The fixed Lanczos start of size n (read-only; results are reproducible)."""
+    v0 = np.random.default_rng(0).standard_normal(n)
+    v0.flags.writeable = False
+    return v0
 
 
 @numba.njit(cache=True)

@@ -151,21 +151,22 @@ def _saddle_order(indptr, indices, rows):
 @numba.njit(cache=True)
 def _saddle_band(indptr, indices, data, w, free, position, half):  # pragma: no cover - compiled
     """[[W_F + I_A, J_F^T], [J_F, 0]] (I_A: the rows d_j = 0 of the variables off F) in LAPACK
-    general band storage for dgbsv: entry (i, j) of the permuted system at [2 half + i - j, j]."""
+    general band storage for dgbtrf: entry (i, j) of the permuted system at [2 half + i - j, j], in
+    Fortran order (LAPACK's own, which spares f2py a copy of the band)."""
     n = indptr.size - 1
     size = position.size
-    band = np.zeros((3 * half + 1, size))
+    columns = np.zeros((size, 3 * half + 1))  # columns[j, r] = band[r, j]
     for j in range(n):
         pj = position[j]
         if free[j]:
-            band[2 * half, pj] = w[j]
+            columns[pj, 2 * half] = w[j]
             for k in range(indptr[j], indptr[j + 1]):
                 pr = position[n + indices[k]]
-                band[2 * half + pr - pj, pj] = data[k]  # J: row r, column j
-                band[2 * half + pj - pr, pr] = data[k]  # J^T: row j, column r
+                columns[pj, 2 * half + pr - pj] = data[k]  # J: row r, column j
+                columns[pr, 2 * half + pj - pr] = data[k]  # J^T: row j, column r
         else:
-            band[2 * half, pj] = 1.0
-    return band
+            columns[pj, 2 * half] = 1.0
+    return columns.T
 
 
 @numba.njit(cache=True)
