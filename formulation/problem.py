@@ -168,9 +168,10 @@ class Problem:
         self._stability_memo: dict[bytes, tuple[float, np.ndarray]] = {}
         # the forces and dc/dp at q* of the last few p (a solver's convergence test, its KKT
         # confirmation and its Result evaluate the same p: 44% of a groom strand's force evaluations
-        # repeated the previous one) and ``unbounded`` quantities; shared with with_lower_bounds twins
-        # like the stability memo. The Jacobians are shared objects: their users only read them
-        self._memos: dict[str, dict] = {"forces": {}, "jacobian": {}, "unbounded": {}}
+        # repeated the previous one) and the ``bound_independent`` quantities; shared with
+        # with_lower_bounds twins like the stability memo. The Jacobians are shared objects: their
+        # users only read them
+        self._memos: dict[str, dict] = {"forces": {}, "jacobian": {}, "bound_independent": {}}
 
     def with_options(self, **changes) -> "Problem":
         """The same strand's Problem with some constructor options changed."""
@@ -184,11 +185,11 @@ class Problem:
         twin.layout.lower = np.minimum(np.maximum(self.layout.lower, lower), self.layout.upper)
         return twin
 
-    def unbounded(self, key: str, build):
+    def bound_independent(self, key: str, build):
         """``build()``, computed once for this problem and its ``with_lower_bounds`` twins: for the
         solvers' quantities that do not depend on the bounds (asc's least rest-shape change at p0,
         which every solve of the stabilization's floored twins would otherwise factor again)."""
-        return _memo(self._memos["unbounded"], key, build)
+        return _memo(self._memos["bound_independent"], key, build)
 
     @functools.cached_property
     def stability_margin(self) -> float:

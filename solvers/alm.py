@@ -449,7 +449,7 @@ def linear_start(problem: Problem) -> np.ndarray | None:
     """
     layout = problem.layout
     rest = layout.block_mask(REST_BLOCKS)
-    step = problem.unbounded("least rest change", lambda: constrained_step(
+    step = problem.bound_independent("least rest change", lambda: constrained_step(
         problem.strand_jacobian(layout.p0), layout.weights, np.zeros(problem.n_parameters), problem.residual(layout.p0),
         rest))
     if step is None or not np.all(np.isfinite(step[0])):
