@@ -80,8 +80,12 @@ def groom_at_revision(revision: str, strands: int, vertices: int, jobs: int) -> 
         subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", "-q", str(checkout), revision],
                        check=True)
         try:
-            subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site),
-                            str(checkout)], check=True, capture_output=True, text=True)
+            installed = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target",
+                                        str(site), str(checkout)], capture_output=True, text=True)
+            if installed.returncode != 0:  # e.g. no network for pip's build isolation
+                reason = (installed.stderr.strip().splitlines() or ["no message"])[-1]
+                print(f"(no `before` row: pip could not install {revision}: {reason})")
+                return None
             out = subprocess.run([sys.executable, "-c", _GROOM_SCRIPT, str(strands), str(vertices), str(jobs)],
                                  cwd=where, env={**os.environ, "PYTHONPATH": str(site)}, check=True,
                                  capture_output=True, text=True).stdout
