@@ -9,8 +9,9 @@ Prints three tables, all measured in this run:
    all cores after a warm-up batch: wall time, strands converged and stable, the ratio to the
    predecessor paper's published 11.2 s for 1.9K strands x 100 vertices (measured there on a larger
    CPU; a reference figure, not a run on this machine) and to the same groom solved by the code at
-   git revision ``--before`` (checked out into a temporary worktree and run in a subprocess right
-   before ours, same machine, same cores; skipped outside a git checkout or with --before "");
+   git revision ``--before`` (installed by pip from a temporary worktree into a folder of its own and
+   run in a subprocess right before ours, same machine, same cores; skipped outside a git checkout,
+   with --before "" or where pip cannot install it);
 2. time per strand against strand size for the same physical strands, one core: the time per
    vertex (flat = linear growth), Gauss-Newton steps, factorizations per step, converged and stable;
 3. the preconditioner ablation on a subset: active-set Cholesky vs Jacobi vs none, with CG

@@ -162,16 +162,13 @@ class Problem:
         self._free_row_scale = self.row_scale[self.free_index]
         self._free_gather = _free_gather(self.free_index, self.q_star.size)
         self._band_scatter = None  # built on the first hessian_band call
-        # the last few (lambda, mode) of stability at q*, by p: a solver's Result, the stabilization
-        # loop and the final Result all ask for the same p (shared with with_lower_bounds twins: the
-        # eigenvalue does not depend on the bounds)
-        self._stability_memo: dict[bytes, tuple[float, np.ndarray]] = {}
-        # the forces and dc/dp at q* of the last few p (a solver's convergence test, its KKT
-        # confirmation and its Result evaluate the same p: 44% of a groom strand's force evaluations
-        # repeated the previous one) and the ``bound_independent`` quantities; shared with
-        # with_lower_bounds twins like the stability memo. The Jacobians are shared objects: their
-        # users only read them
-        self._memos: dict[str, dict] = {"forces": {}, "jacobian": {}, "bound_independent": {}}
+        # what depends on p but not on the bounds, by p, shared with the with_lower_bounds twins: the
+        # last few (lambda, mode) of stability at q* (a solver's Result, the stabilization loop and
+        # the final Result ask for the same p), forces and dc/dp at q* (a solver's convergence test,
+        # its KKT confirmation and its Result evaluate the same p: 44% of a groom strand's force
+        # evaluations repeated the previous one; the Jacobians are shared objects, their users only
+        # read them) and the ``bound_independent`` quantities
+        self._memos: dict[str, dict] = {"stability": {}, "forces": {}, "jacobian": {}, "bound_independent": {}}
 
     def with_options(self, **changes) -> "Problem":
         """The same strand's Problem with some constructor options changed."""
@@ -190,6 +187,10 @@ class Problem:
         solvers' quantities that do not depend on the bounds (asc's least rest-shape change at p0,
         which every solve of the stabilization's floored twins would otherwise factor again)."""
         return _memo(self._memos["bound_independent"], key, build)
+
+    def _by_p(self, kind: str, p, build, limit: int):
+        """``build()`` remembered in the ``kind`` memo by p's values (the last ``limit`` p)."""
+        return _memo(self._memos[kind], self.check_parameters(p).tobytes(), build, limit)
 
     @functools.cached_property
     def stability_margin(self) -> float:
@@ -308,8 +309,7 @@ class Problem:
         of p (``contact_forces``). Away from q* the supports of p mean nothing: the simulation
         has its own contact model (contact module)."""
         if q is None and frames is None:
-            return _memo(self._memos["forces"], self.check_parameters(p).tobytes(),
-                         lambda: self._forces_at_rest(p), AT_REST_MEMO).copy()
+            return self._by_p("forces", p, lambda: self._forces_at_rest(p), AT_REST_MEMO).copy()
         return self.external_forces - self.elastic_gradient(p, q, frames)
 
     def _forces_at_rest(self, p) -> np.ndarray:
@@ -348,8 +348,7 @@ class Problem:
         at another state q (frames as in ``energy``), the derivative of c(q, p) = D^-1 S f(q, p) there
         (the best effort's static sag, solvers.least_sag)."""
         if q is None and frames is None:
-            return _memo(self._memos["jacobian"], self.check_parameters(p).tobytes(),
-                         lambda: self._strand_jacobian(p, q, frames), AT_REST_MEMO)
+            return self._by_p("jacobian", p, lambda: self._strand_jacobian(p, q, frames), AT_REST_MEMO)
         return self._strand_jacobian(p, q, frames)
 
     def _strand_jacobian(self, p, q, frames) -> StrandJacobian:
@@ -468,8 +467,7 @@ class Problem:
         band M^-1/2 H M^-1/2 (linalg.eigen).
         """
         if q is None and frames is None:
-            value, v = _memo(self._stability_memo, np.asarray(p, dtype=float).tobytes(),
-                             lambda: self._stability_at_rest(p), STABILITY_MEMO)
+            value, v = self._by_p("stability", p, lambda: self._stability_at_rest(p), STABILITY_MEMO)
             return (value, v.copy()) if vector else value
         return self._stability_of_band(self.static_hessian_band(p, q, frames), vector)
 

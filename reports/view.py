@@ -31,11 +31,9 @@ groom is plotly.js (~4.8 MB) and 0.25 MB of strands; 1.9K strands x 100 vertices
 from __future__ import annotations
 
 import html
-import json
 import traceback
 from collections import Counter
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 
 import numpy as np

@@ -20,6 +20,9 @@ from sagfree.frontend.table import SOLVERS
 
 #: exit code after Ctrl-C (128 + SIGINT, what shells report)
 INTERRUPTED = 130
+#: what ``simulate`` and ``view`` say of an OpenUSD stage that carries no parameters
+NO_STAGE_PARAMETERS = ("the stage's curves carry no sagfree parameters (primvars:sagfree:parameters); write "
+                       "them with 'sagfree optimize INPUT -o OUT.usda'")
 
 
 def _solver_list(text: str) -> str:
@@ -203,27 +206,37 @@ def _optimize(args) -> int:
 
 def _load_parameters(args):
     """The parameters ``--params`` names (a .npz file, or an OpenUSD stage ``optimize`` wrote), else
-    those the input carries when it is such a stage (scenes.usd)."""
+    those the input carries when it is such a stage (scenes.usd); ValueError if there are none."""
+    from sagfree.scenes.usd import is_stage
+
+    params = _given_parameters(args)
+    if params is None and is_stage(args.input):
+        raise ValueError(f"{args.input}: {NO_STAGE_PARAMETERS}, or give --params FILE")
+    if params is None:
+        raise ValueError(f"{args.input}: --params FILE is needed (the parameters 'sagfree optimize' wrote); only an "
+                         "OpenUSD stage written by 'sagfree optimize' carries its own")
+    return params
+
+
+def _given_parameters(args):
+    """The parameters ``--params`` names, else those an input stage carries, else None (each file
+    read once)."""
     from sagfree.scenes.npz import load_parameters
     from sagfree.scenes.usd import is_stage, load_stage_parameters
 
     source = args.params if args.params is not None else args.input
-    if is_stage(source):
-        params = load_stage_parameters(source)
-        if params is None:
-            raise ValueError(f"{source}: the stage's curves carry no sagfree parameters (primvars:sagfree:parameters);"
-                             " write them with 'sagfree optimize INPUT -o OUT.usda', or give --params FILE")
-        return params
-    if args.params is None:
-        raise ValueError(f"{args.input}: --params FILE is needed (the parameters 'sagfree optimize' wrote); only an "
-                         "OpenUSD stage written by 'sagfree optimize' carries its own")
-    return load_parameters(args.params)
+    if not is_stage(source):
+        return load_parameters(args.params) if args.params is not None else None
+    params = load_stage_parameters(source)
+    if params is None and args.params is not None:
+        raise ValueError(f"{source}: {NO_STAGE_PARAMETERS}")
+    return params
 
 
 def _simulate(args) -> int:
     from sagfree.frontend.batch import simulate_strands
 
-    params, strands = _checked_parameters(args, _load_input(args))
+    params, strands = _checked_parameters(args, _load_input(args), _load_parameters(args))
     from sagfree.formulation.simulation import PUSH, PUSH_DURATION
 
     push = not args.no_push
@@ -253,11 +266,11 @@ def _simulate(args) -> int:
 
 def _view(args) -> int:
     from sagfree.reports.view import write_view
-    from sagfree.scenes.usd import is_stage, load_stage_parameters
 
     strands = _load_input(args)
-    if args.params is not None or (is_stage(args.input) and load_stage_parameters(args.input) is not None):
-        params, strands = _checked_parameters(args, strands)
+    params = _given_parameters(args)
+    if params is not None:
+        params, strands = _checked_parameters(args, strands, params)
         count = len(strands) if args.max_strands is None else min(args.max_strands, len(strands))
         strands = strands[:count]
         parameters, status, messages = params.p[:count], params.status[:count], params.message[:count]
@@ -280,14 +293,13 @@ def _view(args) -> int:
     return 0
 
 
-def _checked_parameters(args, strands):
-    """(the parameters ``--params`` names or the input stage carries, ``strands``) checked against
-    each other; the material the input file does not store (an OBJ's, a .hair's moduli) and the
-    command line does not give is the material the parameters were computed for."""
+def _checked_parameters(args, strands, params):
+    """(``params``, ``strands``) checked against each other; the material the input file does not
+    store (an OBJ's, a .hair's moduli) and the command line does not give is the material the
+    parameters were computed for."""
     from sagfree.scenes.catalog import stored_material
     from sagfree.scenes.npz import MATERIAL_FIELDS
 
-    params = _load_parameters(args)
     given = {name for name, value in _material(args).items() if value is not None}
     strands = params.with_material(strands, [f for f in MATERIAL_FIELDS
                                              if f not in stored_material(args.input) and f not in given])
