@@ -42,9 +42,14 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     kkt_tol, NEWTON_STEPS steps of SQP with the exact Hessian of the Lagrangian
     W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian, least-squares multipliers, one sparse
     LU each, a second-order correction back to c = 0) are tried (counted as ``newton_sqp``); their
-    point is taken if it passes the convergence test without raising R (_newton_sqp). At most
-    NEWTON_ATTEMPTS per solve. (Tried sooner, from the linear start, Newton ends at other KKT points
-    with R up to 2e-4 higher than Ipopt's: Gauss-Newton on L brings p into the right basin first.)
+    point is taken if it passes the convergence test without raising R (_newton_sqp). The same is
+    tried where the constraint stalls near feasibility (|c|_inf <= STALLED_VIOLATION) and the SQP
+    step below fails: on strands of 1000 and more vertices that step (diagonal W) is useless, and
+    the larger mu that followed made Gauss-Newton crawl along the soft modes at |c|_inf ~1e-8,
+    within the rounding of c there (84 Gauss-Newton steps on groom(4, 2000, seed=1), 21 with Newton
+    tried there, same optima to 4e-12 in R). At most NEWTON_ATTEMPTS per solve. (Tried sooner, from
+    the linear start, Newton ends at other KKT points with R up to 2e-4 higher than Ipopt's:
+    Gauss-Newton on L brings p into the right basin first.)
 Stall: the rounding estimate of L can be too optimistic, and accepted steps that lower L by less than
     its rounding make no progress; STALL of them in a row end the inner loop, and on a feasible p the
     KKT distance decides convergence.
@@ -73,7 +78,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
 
 from sagfree.contract.optimality import KKT_TOL, TOL, gradient_scale, kkt_optimality, scaled_projected_gradient
 from sagfree.contract.result import Result, make_result
@@ -280,7 +284,20 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                 target = max(1e-3 * target, MIN_TARGET)
         crawled = violation <= tol and counts["gauss_newton"] > steps_before
         feasible_rounds = feasible_rounds + 1 if crawled else 0
-        if (not converged and feasible_rounds >= NEWTON_AFTER and attempts < NEWTON_ATTEMPTS):
+        stalls = violation > tol and violation > 0.25 * previous_violation
+        if stalls:  # before growing mu, try the constrained step (SQP)
+            sqp = _sqp_step(problem, model, p, c, J, SQP_DECREASE * violation)
+            if sqp is not None:
+                counts["sqp"] += 1
+                p, c, lam = sqp
+                J = problem.strand_jacobian(p)
+                scale = gradient_scale(model.w, J)
+                history.append(float(np.abs(c).max(initial=0.0)))
+                previous_violation = violation
+                continue
+        # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it (module docstring)
+        if (not converged and attempts < NEWTON_ATTEMPTS
+                and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= STALLED_VIOLATION))):
             attempts, feasible_rounds = attempts + 1, 0
             newton = _newton_sqp(problem, model, p, counts, tol, kkt_tol)
             if newton is not None:
@@ -292,17 +309,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance {distance:.2e} <= "
                           f"{kkt_tol:g} after "
                           f"{counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
-        if violation > tol and violation > 0.25 * previous_violation:
-            # the constraint stalls: before growing mu, try the constrained step (SQP)
-            sqp = _sqp_step(problem, model, p, c, J, SQP_DECREASE * violation)
-            if sqp is not None:
-                counts["sqp"] += 1
-                p, c, lam = sqp
-                J = problem.strand_jacobian(p)
-                scale = gradient_scale(model.w, J)
-                history.append(float(np.abs(c).max(initial=0.0)))
-                previous_violation = violation
-                continue
+        if stalls:
             mu *= mu_growth
             if mu >= 1e4 * mu0:
                 verdict = _infeasibility(problem, p, c, J, lower, upper)
@@ -330,14 +337,14 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
 
 
 def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float):
-    """(p, c, KKT distance) after at most NEWTON_STEPS exact-Hessian SQP steps from the feasible p
-    (module docstring, Newton-SQP), or None unless they end at a point with |c|_inf <= tol, KKT
-    distance <= kkt_tol and R no larger than at p (plus rounding).
+    """(p, c, KKT distance) after at most NEWTON_STEPS exact-Hessian SQP steps from the feasible or
+    nearly feasible p (module docstring, Newton-SQP), or None unless they end at a point with
+    |c|_inf <= tol, KKT distance <= kkt_tol and R no larger than at p (plus rounding).
 
     Each step solves [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w) +
     sum lam_r c_r''(p) (lam: least-squares multipliers at p) on the variables strictly inside their
-    boxes; a trial point that leaves |c|_inf > tol gets the least W-norm correction back to c = 0
-    (constrained_step, the same J).
+    boxes (linalg.saddle.newton_kkt_step, a band LU); a trial point that leaves |c|_inf > tol gets
+    the least W-norm correction back to c = 0 (constrained_step, the same J).
     """
     lower, upper = problem.layout.lower, problem.layout.upper
     start_objective = problem.objective(p)
@@ -350,8 +357,7 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
         lam = estimate if np.all(np.isfinite(estimate)) else lam
         if lam is None:
             return None
-        hessian = sp.diags(model.w) + problem.constraint_hessian(x, lam)
-        step = newton_kkt_step(J, hessian, gradient, c, free)
+        step = newton_kkt_step(J, model.w, problem.constraint_hessian(x, lam), gradient, c, free)
         if step is None:
             return None
         counts["newton_sqp"] += 1
@@ -389,7 +395,7 @@ def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float):
     curvature of c (the stiffness x rest-shape products) spoils the step, a second-order correction
     follows: the least W-norm step back to c = 0 from the trial point with the same J and the same
     factors (two triangular solves). On 2000-vertex strands the step is rejected (|d|_inf ~0.5,
-    |c|_inf ~1e5 after it, even at a sixteenth of it) and Gauss-Newton and Newton-SQP do the work.
+    |c|_inf ~1e5 after it, even at a sixteenth of it) and solve_alm tries Newton-SQP instead.
     """
     free = (p > problem.layout.lower) & (p < problem.layout.upper)
     factor = SaddleFactor(J, model.w, free)

@@ -2,6 +2,7 @@
 import casadi as ca
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import sagfree
 from sagfree.formulation.symbolic import SymbolicNLP
@@ -60,6 +61,37 @@ def test_constrained_step_matches_a_dense_solve(stiffness, rng):
     few = np.zeros(problem.n_parameters, dtype=bool)
     few[: c.size - 1] = True
     assert SaddleFactor(J, w, few).singular and constrained_step(J, w, g, c, few) is None
+
+
+@pytest.mark.parametrize("stiffness", ["element", "strand"])
+def test_newton_kkt_step_matches_a_dense_solve(stiffness, rng, capfd):
+    """linalg.saddle.newton_kkt_step with the exact Hessian of the Lagrangian, W = diag(w) +
+    sum lam_r c_r'' (band LU with the curvature in the band; SuperLU where the strand multiplier's
+    column is dense) against numpy on the same system; a system with a zero constraint row is
+    singular: None, and nothing printed (SuperLU's BLAS printed errors on some singular systems)."""
+    from sagfree.linalg.saddle import newton_kkt_step
+    problem = sagfree.Problem(sagfree.scenes.helix(n=25), stiffness=stiffness)
+    p = problem.p0 + 0.3 * rng.random(problem.n_parameters) * (problem.upper - problem.p0)
+    free = np.ones(problem.n_parameters, dtype=bool)
+    free[[3, 50]] = False
+    w, J, c = problem.layout.weights, problem.strand_jacobian(p), problem.residual(p)
+    # multipliers of the size the solver meets (least-squares ones at this helix's optimum: 2e-3 to 3e-2 rms)
+    lam, g = 1e-3 * rng.standard_normal(c.size), rng.standard_normal(problem.n_parameters)
+    curvature = problem.constraint_hessian(p, lam)
+    assert curvature.nnz > problem.n_parameters  # off-diagonal couplings that widen the band
+    d, multipliers = newton_kkt_step(J, w, curvature, g, c, free)
+    dense, F = J.tocsc().toarray(), np.flatnonzero(free)
+    W = np.diag(w) + curvature.toarray()
+    K = np.block([[W[np.ix_(F, F)], dense[:, F].T], [dense[:, F], np.zeros((c.size, c.size))]])
+    reference = np.linalg.solve(K, -np.concatenate([g[F], c]))
+    assert np.all(d[~free] == 0.0)
+    x, b = np.concatenate([d[F], multipliers]), -np.concatenate([g[F], c])
+    assert np.abs(K @ x - b).max() <= 1e-11 * (np.abs(K) @ np.abs(x) + np.abs(b)).max()  # backward stable
+    assert np.allclose(x, reference, rtol=1e-6, atol=1e-9 * np.abs(reference).max())
+    capfd.readouterr()
+    singular = sp.csc_matrix(J.tocsc().toarray() * (np.arange(c.size) != 5)[:, None])  # row 5 empty
+    assert newton_kkt_step(singular, w, curvature, g, c, free) is None
+    assert capfd.readouterr() == ("", "")
 
 
 def test_kkt_measure_frees_near_bound_variables_when_too_few_are_free():

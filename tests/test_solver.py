@@ -222,7 +222,8 @@ def test_strands_that_crawled_at_large_mu_converge():
 def test_every_strand_size_converges_stably(vertices):
     """The shortest strands (one inner vertex: fewer free DOFs than the Hessian has diagonals, which
     once broke the stability check) and long ones: on groom(1, 2000) Gauss-Newton crawled at a
-    feasible p for 123 steps before the crawl test (alm._crawls) handed over to Newton-SQP (~20)."""
+    feasible p for 123 steps before the crawl test (alm._crawls) handed over to Newton-SQP, then
+    19 before Newton-SQP was tried where the diagonal-W SQP step fails (now 1)."""
     for strand in sagfree.scenes.groom(2 if vertices < 10 else 1, vertices, seed=0):
         problem = sagfree.Problem(strand)
         result = sagfree.solve(problem)
@@ -233,7 +234,7 @@ def test_every_strand_size_converges_stably(vertices):
             solved = problem if result.floors is None else problem.with_lower_bounds(result.floors)
             assert kkt_optimality(solved, result.p) <= KKT_TOL
         assert result.stable and result.min_eigenvalue >= problem.stability_margin
-        assert result.iterations["gauss_newton"] < 60
+        assert result.iterations["gauss_newton"] < (60 if vertices < 10 else 10)
 
 
 @pytest.mark.parametrize("dense_column", [True, False])

@@ -19,9 +19,9 @@ from .timing import LINEAR_ALGEBRA, timed
 
 class SaddleFactor:
     """The factored saddle system [[W_F, J_F^T], [J_F, 0]] of a Jacobian J, weights w and free set F
-    (W = diag(w)), for several right-hand sides: ``solve(gradient, c)`` is one pair of triangular
-    solves. ``singular`` when the system is (J_F rank deficient: more constraints than free
-    directions); then ``solve`` must not be called.
+    (W = diag(w) + ``curvature``, a sparse symmetric matrix or None), for several right-hand sides:
+    ``solve(gradient, c)`` is one pair of triangular solves. ``singular`` when the system is (J_F
+    rank deficient: more constraints than free directions); then ``solve`` must not be called.
 
     Factored by an LU with partial pivoting of the whole system. The variables off F are kept as
     unknowns with the rows d_j = 0, so the system's pattern is J's whatever F is, and its unknowns
@@ -30,11 +30,13 @@ class SaddleFactor:
     LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU on the free variables'
     system; a solve (dgbtrs) costs about a tenth of the factorization. A column that fills most rows
     (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
-    system of F alone, assembled in compressed columns.
+    system of F alone, assembled in compressed columns. ``curvature`` (the constraints' curvature in
+    the exact Hessian of a Lagrangian) couples the entries of each stencil, which sit next to each
+    other in the interleaved order: it widens the band a little; it needs the band path.
     """
 
     @timed(LINEAR_ALGEBRA)
-    def __init__(self, J, w, free):
+    def __init__(self, J, w, free, curvature=None):
         self.free = np.asarray(free, dtype=bool)
         self.rows, self.n = J.shape
         self.singular = bool(self.free.sum() < self.rows)  # J_F cannot have full row rank
@@ -44,9 +46,14 @@ class SaddleFactor:
         w = np.asarray(w, dtype=float)
         order = _saddle_order(indptr, indices, self.rows)
         self._band = order is not None
+        if curvature is not None and not self._band:
+            raise ValueError("a curvature term needs the band path (no dense column in J)")
         if self._band:
             self._position, self._half = order
-            band = _saddle_band(indptr, indices, data, w, self.free, self._position, self._half)
+            rows, columns, values = _free_entries(curvature, self.free)
+            self._half = max(self._half, int(np.abs(self._position[rows] - self._position[columns]).max(initial=0)))
+            band = _saddle_band(indptr, indices, data, w, self.free, self._position, self._half, rows, columns,
+                                values)
             self._lu, self._pivots, info = scipy.linalg.lapack.dgbtrf(band, self._half, self._half,
                                                                      overwrite_ab=True)
             self.singular = info != 0
@@ -90,15 +97,26 @@ def constrained_step(J, w, gradient, c, free):
 
 
 @timed(LINEAR_ALGEBRA)
-def newton_kkt_step(J, W: sp.spmatrix, gradient, c, free):
-    """(d, lam) of [[W_FF, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] for a sparse symmetric W
-    (the exact Hessian of a Lagrangian), d = 0 off F; None if the system is singular.
+def newton_kkt_step(J, w, curvature: sp.spmatrix, gradient, c, free):
+    """(d, lam) of [[W_FF, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] for W = diag(w) +
+    ``curvature`` (sparse symmetric: the exact Hessian of a Lagrangian), d = 0 off F; None if the
+    system is singular or the step not finite.
 
-    SuperLU on the free variables' system: a Newton-SQP phase takes a handful of these where the
-    diagonal-W steps of ``constrained_step`` take hundreds, so the band LU's speed does not matter.
+    The band LU of SaddleFactor where J has no dense column: Newton-SQP does the last steps of long
+    strands (on a 1000-vertex strand SuperLU took 13 ms per factorization, the band LU 9 ms), and
+    LAPACK reports an exactly singular system by its info, where SuperLU, given a numerically
+    singular one, printed BLAS errors on stdout before raising. Else SuperLU on the free variables'
+    system.
     """
     if free.sum() < J.shape[0]:
         return None
+    if _saddle_order(*csc_arrays(J)[:2], J.shape[0]) is not None:
+        factor = SaddleFactor(J, w, free, curvature)
+        if factor.singular:
+            return None
+        step, lam = factor.solve(gradient, c)
+        return (step, lam) if np.all(np.isfinite(step)) and np.all(np.isfinite(lam)) else None
+    W = sp.diags(np.asarray(w, dtype=float)) + curvature
     columns = np.flatnonzero(free)
     J_free = sp.csc_matrix(J if sp.issparse(J) else J.tocsc())[:, columns]
     W_free = sp.csr_matrix(W)[columns][:, columns]
@@ -148,11 +166,22 @@ def _saddle_order(indptr, indices, rows):
     return order
 
 
+def _free_entries(matrix, free):
+    """(rows, columns, values) of a sparse matrix's entries between free variables (None: none)."""
+    if matrix is None:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+    coo = sp.coo_matrix(matrix)
+    keep = free[coo.row] & free[coo.col]
+    return coo.row[keep].astype(np.int64), coo.col[keep].astype(np.int64), coo.data[keep].astype(float)
+
+
 @numba.njit(cache=True)
-def _saddle_band(indptr, indices, data, w, free, position, half):  # pragma: no cover - compiled
-    """[[W_F + I_A, J_F^T], [J_F, 0]] (I_A: the rows d_j = 0 of the variables off F) in LAPACK
-    general band storage for dgbtrf: entry (i, j) of the permuted system at [2 half + i - j, j], in
-    Fortran order (LAPACK's own, which spares f2py a copy of the band)."""
+def _saddle_band(indptr, indices, data, w, free, position, half, curvature_rows, curvature_columns,
+                 curvature_values):  # pragma: no cover - compiled
+    """[[W_F + C_FF + I_A, J_F^T], [J_F, 0]] (W = diag(w), C the curvature entries between free
+    variables as triplets, I_A the rows d_j = 0 of the variables off F) in LAPACK general band
+    storage for dgbtrf: entry (i, j) of the permuted system at [2 half + i - j, j], in Fortran order
+    (LAPACK's own, which spares f2py a copy of the band)."""
     n = indptr.size - 1
     size = position.size
     columns = np.zeros((size, 3 * half + 1))  # columns[j, r] = band[r, j]
@@ -166,6 +195,9 @@ def _saddle_band(indptr, indices, data, w, free, position, half):  # pragma: no 
                 columns[pr, 2 * half + pj - pr] = data[k]  # J^T: row j, column r
         else:
             columns[pj, 2 * half] = 1.0
+    for k in range(curvature_values.size):
+        pi, pj = position[curvature_rows[k]], position[curvature_columns[k]]
+        columns[pj, 2 * half + pi - pj] += curvature_values[k]
     return columns.T
 
 
