@@ -27,6 +27,7 @@ PARTS = [
     (alm, "make_result", "Result: summaries and stability"),
     (alm, "kkt_optimality", "KKT confirmation (band LU)"),
     (alm, "_sqp_step", "SQP steps where the constraint stalls (band LU)"),
+    (alm, "_newton_sqp", "Newton-SQP steps (exact Hessian, band LU)"),
     (Problem, "__init__", "Problem construction"),
 ]
 

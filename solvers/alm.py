@@ -86,7 +86,7 @@ from sagfree.formulation.parameters import CONTACT_BLOCK, REST_BLOCKS, STIFFNESS
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import spread_rest_change, stiffest
 from sagfree.linalg.band import column_norms, gram
-from sagfree.linalg.saddle import SaddleFactor, constrained_step, newton_kkt_step
+from sagfree.linalg.saddle import SaddleFactor, constrained_step
 
 from .mprgp import solve_box_qp
 from .multipliers import least_squares_multipliers
@@ -343,8 +343,10 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
 
     Each step solves [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w) +
     sum lam_r c_r''(p) (lam: least-squares multipliers at p) on the variables strictly inside their
-    boxes (linalg.saddle.newton_kkt_step, a band LU); a trial point that leaves |c|_inf > tol gets
-    the least W-norm correction back to c = 0 (constrained_step, the same J).
+    boxes (linalg.saddle.SaddleFactor with the curvature, a band LU); a trial point that leaves
+    |c|_inf > tol gets the least diag(w)-norm correction back to c = 0 (constrained_step, the same
+    J). (The correction with the step's own factors, i.e. in the metric W, saved a factorization
+    per step but left 2 of 6 strands of groom(6, 2000) at max_iterations.)
     """
     lower, upper = problem.layout.lower, problem.layout.upper
     start_objective = problem.objective(p)
@@ -357,11 +359,14 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
         lam = estimate if np.all(np.isfinite(estimate)) else lam
         if lam is None:
             return None
-        step = newton_kkt_step(J, model.w, problem.constraint_hessian(x, lam), gradient, c, free)
-        if step is None:
+        factor = SaddleFactor(J, model.w, free, problem.constraint_hessian(x, lam))
+        if factor.singular:
+            return None
+        step, _ = factor.solve(gradient, c)
+        if not np.all(np.isfinite(step)):
             return None
         counts["newton_sqp"] += 1
-        trial = np.clip(x + step[0], lower, upper)
+        trial = np.clip(x + step, lower, upper)
         c_trial = problem.residual(trial)
         if not np.abs(c_trial).max(initial=0.0) <= tol:
             correction = constrained_step(J, model.w, np.zeros_like(x), c_trial, free)

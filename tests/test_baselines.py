@@ -64,12 +64,13 @@ def test_constrained_step_matches_a_dense_solve(stiffness, rng):
 
 
 @pytest.mark.parametrize("stiffness", ["element", "strand"])
-def test_newton_kkt_step_matches_a_dense_solve(stiffness, rng, capfd):
-    """linalg.saddle.newton_kkt_step with the exact Hessian of the Lagrangian, W = diag(w) +
-    sum lam_r c_r'' (band LU with the curvature in the band; SuperLU where the strand multiplier's
-    column is dense) against numpy on the same system; a system with a zero constraint row is
-    singular: None, and nothing printed (SuperLU's BLAS printed errors on some singular systems)."""
-    from sagfree.linalg.saddle import newton_kkt_step
+def test_saddle_with_curvature_matches_a_dense_solve(stiffness, rng, capfd):
+    """linalg.saddle.SaddleFactor with the exact Hessian of the Lagrangian, W = diag(w) +
+    sum lam_r c_r'' (asc's Newton-SQP: band LU with the curvature in the band; SuperLU where the
+    strand multiplier's column is dense) against numpy on the same system; a system with a zero
+    constraint row is singular, and says so without printing anything (SuperLU's BLAS printed
+    errors for some singular systems)."""
+    from sagfree.linalg.saddle import SaddleFactor
     problem = sagfree.Problem(sagfree.scenes.helix(n=25), stiffness=stiffness)
     p = problem.p0 + 0.3 * rng.random(problem.n_parameters) * (problem.upper - problem.p0)
     free = np.ones(problem.n_parameters, dtype=bool)
@@ -79,7 +80,7 @@ def test_newton_kkt_step_matches_a_dense_solve(stiffness, rng, capfd):
     lam, g = 1e-3 * rng.standard_normal(c.size), rng.standard_normal(problem.n_parameters)
     curvature = problem.constraint_hessian(p, lam)
     assert curvature.nnz > problem.n_parameters  # off-diagonal couplings that widen the band
-    d, multipliers = newton_kkt_step(J, w, curvature, g, c, free)
+    d, multipliers = SaddleFactor(J, w, free, curvature).solve(g, c)
     dense, F = J.tocsc().toarray(), np.flatnonzero(free)
     W = np.diag(w) + curvature.toarray()
     K = np.block([[W[np.ix_(F, F)], dense[:, F].T], [dense[:, F], np.zeros((c.size, c.size))]])
@@ -90,7 +91,7 @@ def test_newton_kkt_step_matches_a_dense_solve(stiffness, rng, capfd):
     assert np.allclose(x, reference, rtol=1e-6, atol=1e-9 * np.abs(reference).max())
     capfd.readouterr()
     singular = sp.csc_matrix(J.tocsc().toarray() * (np.arange(c.size) != 5)[:, None])  # row 5 empty
-    assert newton_kkt_step(singular, w, curvature, g, c, free) is None
+    assert SaddleFactor(singular, w, free, curvature).singular
     assert capfd.readouterr() == ("", "")
 
 

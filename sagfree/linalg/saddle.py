@@ -31,8 +31,10 @@ class SaddleFactor:
     system; a solve (dgbtrs) costs about a tenth of the factorization. A column that fills most rows
     (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
     system of F alone, assembled in compressed columns. ``curvature`` (the constraints' curvature in
-    the exact Hessian of a Lagrangian) couples the entries of each stencil, which sit next to each
-    other in the interleaved order: it widens the band a little; it needs the band path.
+    the exact Hessian of a Lagrangian, asc's Newton-SQP) couples the entries of each stencil, which
+    sit next to each other in the interleaved order: it widens the band a little. Where the system
+    is numerically but not exactly singular, the band LU goes through and the solution is huge
+    (SuperLU printed BLAS errors on stdout for such systems of long-hair strands before raising).
     """
 
     @timed(LINEAR_ALGEBRA)
@@ -46,8 +48,6 @@ class SaddleFactor:
         w = np.asarray(w, dtype=float)
         order = _saddle_order(indptr, indices, self.rows)
         self._band = order is not None
-        if curvature is not None and not self._band:
-            raise ValueError("a curvature term needs the band path (no dense column in J)")
         if self._band:
             self._position, self._half = order
             rows, columns, values = _free_entries(curvature, self.free)
@@ -58,12 +58,7 @@ class SaddleFactor:
                                                                      overwrite_ab=True)
             self.singular = info != 0
         else:
-            row_csr = sp.csc_matrix((data, indices, indptr), shape=J.shape).tocsr()
-            size = int(self.free.sum())
-            inside = np.cumsum(self.free) - 1  # index of each free variable in d_F
-            system = sp.csc_matrix(_kkt_system(indptr, indices, data, row_csr.indptr.astype(np.int64),
-                                               row_csr.indices.astype(np.int64), row_csr.data, w, self.free,
-                                               inside, size), shape=(size + self.rows, size + self.rows))
+            system = _free_system(J, indptr, indices, data, w, self.free, curvature)
             try:
                 self._lu = sp.linalg.splu(system)
             except RuntimeError:
@@ -96,40 +91,20 @@ def constrained_step(J, w, gradient, c, free):
     return None if factor.singular else factor.solve(gradient, c)
 
 
-@timed(LINEAR_ALGEBRA)
-def newton_kkt_step(J, w, curvature: sp.spmatrix, gradient, c, free):
-    """(d, lam) of [[W_FF, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] for W = diag(w) +
-    ``curvature`` (sparse symmetric: the exact Hessian of a Lagrangian), d = 0 off F; None if the
-    system is singular or the step not finite.
-
-    The band LU of SaddleFactor where J has no dense column: Newton-SQP does the last steps of long
-    strands (on a 1000-vertex strand SuperLU took 13 ms per factorization, the band LU 9 ms), and
-    LAPACK reports an exactly singular system by its info, where SuperLU, given a numerically
-    singular one, printed BLAS errors on stdout before raising. Else SuperLU on the free variables'
-    system.
-    """
-    if free.sum() < J.shape[0]:
-        return None
-    if _saddle_order(*csc_arrays(J)[:2], J.shape[0]) is not None:
-        factor = SaddleFactor(J, w, free, curvature)
-        if factor.singular:
-            return None
-        step, lam = factor.solve(gradient, c)
-        return (step, lam) if np.all(np.isfinite(step)) and np.all(np.isfinite(lam)) else None
-    W = sp.diags(np.asarray(w, dtype=float)) + curvature
-    columns = np.flatnonzero(free)
-    J_free = sp.csc_matrix(J if sp.issparse(J) else J.tocsc())[:, columns]
-    W_free = sp.csr_matrix(W)[columns][:, columns]
-    system = sp.bmat([[W_free, J_free.T], [J_free, None]], format="csc")
-    try:
-        solution = sp.linalg.splu(system).solve(-np.concatenate([np.asarray(gradient)[columns], c]))
-    except RuntimeError:
-        return None
-    if not np.all(np.isfinite(solution)):
-        return None
-    d = np.zeros(J.shape[1])
-    d[columns] = solution[:columns.size]
-    return d, solution[columns.size:]
+def _free_system(J, indptr, indices, data, w, free, curvature) -> sp.csc_matrix:
+    """[[W_FF, J_F^T], [J_F, 0]] on the free variables alone, in compressed columns (SaddleFactor's
+    SuperLU path)."""
+    if curvature is not None:
+        columns = np.flatnonzero(free)
+        J_free = sp.csc_matrix((data, indices, indptr), shape=J.shape)[:, columns]
+        W_free = sp.csr_matrix(sp.diags(w) + curvature)[columns][:, columns]
+        return sp.bmat([[W_free, J_free.T], [J_free, None]], format="csc")
+    row_csr = sp.csc_matrix((data, indices, indptr), shape=J.shape).tocsr()
+    size, rows = int(free.sum()), J.shape[0]
+    inside = np.cumsum(free) - 1  # index of each free variable in d_F
+    return sp.csc_matrix(_kkt_system(indptr, indices, data, row_csr.indptr.astype(np.int64),
+                                     row_csr.indices.astype(np.int64), row_csr.data, w, free, inside, size),
+                         shape=(size + rows, size + rows))
 
 
 #: interleaved orders of saddle systems by J's pattern (_saddle_order): the strands of a groom share a few
