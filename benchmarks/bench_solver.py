@@ -13,7 +13,8 @@ Prints three tables, all measured in this run:
    run in a subprocess right before ours, same machine, same cores; skipped outside a git checkout,
    with --before "" or where pip cannot install it);
 2. time per strand against strand size for the same physical strands, one core: the time per
-   vertex (flat = linear growth), Gauss-Newton steps, factorizations per step, converged and stable;
+   vertex (flat = linear growth), Gauss-Newton, SQP and Newton-SQP steps, QP factorizations per
+   Gauss-Newton step, converged and stable;
 3. the preconditioner ablation on a subset: active-set Cholesky vs Jacobi vs none, with CG
    iterations, expansions, factorizations, time and the ratio to the active-set Cholesky.
 """
@@ -39,7 +40,7 @@ def summary(results) -> dict:
     statuses = {s: sum(r.status == s for r in results) for s in ("converged", "infeasible",
                                                                  "max_iterations", "failed")}
     keys = ("outer", "gauss_newton", "cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
-            "factored_rows", "sqp", "tightened")
+            "factored_rows", "sqp", "newton_sqp", "tightened", "stabilization")
     counts = {k: np.array([r.iterations.get(k, 0) for r in results]) for k in keys}
     return dict(statuses=statuses, counts=counts, solve_time=np.array([r.time for r in results]))
 
@@ -125,8 +126,8 @@ def groom_table(strands: int, vertices: int, jobs: int, before: str) -> None:
 
 def size_table(sizes, strands: int) -> None:
     print(f"\n2. time per strand against strand size ({strands} groom strands per size, one core)")
-    print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'GN steps':>9} {'factor./GN':>11} "
-          f"{'converged':>10} {'stable':>7}")
+    print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'GN steps':>9} {'SQP':>5} {'Newton':>7} "
+          f"{'factor./GN':>11} {'converged':>10} {'stable':>7}")
     for n in sizes:
         groom = sagfree.scenes.groom(strands, n, seed=0)
         sagfree.optimize(groom[:1], jobs=1)
@@ -134,9 +135,11 @@ def size_table(sizes, strands: int) -> None:
         t = np.mean([r.time for r in results])
         steps = np.mean([r.iterations.get("gauss_newton", 0) for r in results])
         factorizations = np.mean([r.iterations.get("factorizations", 0) for r in results])
+        sqp, newton = (np.mean([r.iterations.get(k, 0) for r in results]) for k in ("sqp", "newton_sqp"))
         ok = sum(r.status == "converged" for r in results)
         stable = sum(bool(r.stable) for r in results)
-        print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {steps:9.1f} {factorizations / max(steps, 1):11.1f} "
+        print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {steps:9.1f} {sqp:5.1f} {newton:7.1f} "
+              f"{factorizations / max(steps, 1):11.1f} "
               f"{ok:>6}/{len(results)} {stable:>7}", flush=True)
 
 
