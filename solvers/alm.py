@@ -40,7 +40,7 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     clamped at both ends 3e-5 above the optimum in R). So after NEWTON_AFTER outer iterations in a
     row whose inner solves stepped and ended at a feasible p whose KKT distance is still above
     kkt_tol, NEWTON_STEPS steps of SQP with the exact Hessian of the Lagrangian
-    W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian, least-squares multipliers, one sparse
+    W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian, least-squares multipliers, one band
     LU each, a second-order correction back to c = 0) are tried (counted as ``newton_sqp``); their
     point is taken if it passes the convergence test without raising R (_newton_sqp). The same is
     tried where the constraint stalls near feasibility (|c|_inf <= STALLED_VIOLATION) and the SQP

@@ -34,7 +34,7 @@ class SaddleFactor:
     the exact Hessian of a Lagrangian, asc's Newton-SQP) couples the entries of each stencil, which
     sit next to each other in the interleaved order: it widens the band a little. Where the system
     is numerically but not exactly singular, the band LU goes through and the solution is huge
-    (SuperLU printed BLAS errors on stdout for such systems of long-hair strands before raising).
+    (SuperLU, given such systems from long-hair strands, printed BLAS errors on stdout and raised).
     """
 
     @timed(LINEAR_ALGEBRA)
@@ -51,7 +51,8 @@ class SaddleFactor:
         if self._band:
             self._position, self._half = order
             rows, columns, values = _free_entries(curvature, self.free)
-            self._half = max(self._half, int(np.abs(self._position[rows] - self._position[columns]).max(initial=0)))
+            reach = np.abs(self._position[rows] - self._position[columns]).max(initial=0)
+            self._half = max(self._half, int(reach))
             band = _saddle_band(indptr, indices, data, w, self.free, self._position, self._half, rows, columns,
                                 values)
             self._lu, self._pivots, info = scipy.linalg.lapack.dgbtrf(band, self._half, self._half,
