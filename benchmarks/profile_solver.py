@@ -15,6 +15,7 @@ import os
 import time
 
 import sagfree
+import sagfree.frontend.stabilize as stabilize
 import sagfree.solvers.alm as alm
 from sagfree.formulation.problem import Problem
 
@@ -29,6 +30,8 @@ PARTS = [
     (alm, "_sqp_step", "SQP steps where the constraint stalls (band LU)"),
     (alm, "_newton_sqp", "Newton-SQP steps (exact Hessian, band LU)"),
     (Problem, "__init__", "Problem construction"),
+    (Problem, "_stability_at_rest", "stability at q* (margin at p0, each Result's p)"),
+    (stabilize, "floors_loop", "stabilization rounds (floors, re-solves)"),
 ]
 
 
