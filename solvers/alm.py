@@ -43,12 +43,13 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian, least-squares multipliers, one band
     LU each, a second-order correction back to c = 0) are tried (counted as ``newton_sqp``); their
     point is taken if it passes the convergence test without raising R (_newton_sqp). The same is
-    tried where the constraint stalls near feasibility (|c|_inf <= STALLED_VIOLATION) and the SQP
-    step below fails: on strands of 1000 and more vertices that step (diagonal W) is useless, and
-    the larger mu that followed made Gauss-Newton crawl along the soft modes at |c|_inf ~1e-8,
-    within the rounding of c there (84 Gauss-Newton steps on groom(4, 2000, seed=1), 21 with Newton
-    tried there, same optima to 4e-12 in R). At most NEWTON_ATTEMPTS per solve. (Tried sooner, from
-    the linear start, Newton ends at other KKT points with R up to 2e-4 higher than Ipopt's:
+    tried where the constraint stalls near feasibility (|c|_inf <= NEWTON_NEAR) and the SQP step
+    below fails: on strands of 1000 and more vertices that step (diagonal W) is useless, and the
+    larger mu that followed made Gauss-Newton crawl along the soft modes at |c|_inf ~1e-8, within
+    the rounding of c there (84 Gauss-Newton steps on groom(4, 2000, seed=1), 25 with Newton tried
+    there, same optima to 4e-12 in R). At most NEWTON_ATTEMPTS per solve. (Tried sooner, Newton ends
+    at other KKT points: from the linear start with R up to 2e-4 higher than Ipopt's; from
+    |c|_inf = 6e-4 on a strand resting on a head, 1.2e-5 higher than where Gauss-Newton goes.
     Gauss-Newton on L brings p into the right basin first.)
 Stall: the rounding estimate of L can be too optimistic, and accepted steps that lower L by less than
     its rounding make no progress; STALL of them in a row end the inner loop, and on a feasible p the
@@ -103,6 +104,7 @@ CRAWL_NEAR = 100.0  # ... where |c|_inf <= CRAWL_NEAR tol (far from it, the infe
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
 MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
 STALLED_VIOLATION = 1e-3  # |c|_inf above which a penalty of 1e4 mu0 hands over to least_residual
+NEWTON_NEAR = 1e-4  # |c|_inf at or below which a stalled constraint whose SQP step fails gets Newton-SQP
 NEWTON_STEPS = 12  # exact-Hessian SQP steps per attempt (module docstring, Newton-SQP)
 NEWTON_ATTEMPTS = 3  # attempts per solve
 NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row at a feasible p
@@ -297,7 +299,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                 continue
         # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it (module docstring)
         if (not converged and attempts < NEWTON_ATTEMPTS
-                and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= STALLED_VIOLATION))):
+                and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= NEWTON_NEAR))):
             attempts, feasible_rounds = attempts + 1, 0
             newton = _newton_sqp(problem, model, p, counts, tol, kkt_tol)
             if newton is not None:
