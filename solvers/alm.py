@@ -50,7 +50,13 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     there, same optima to 4e-12 in R). At most NEWTON_ATTEMPTS per solve. (Tried sooner, Newton ends
     at other KKT points: from the linear start with R up to 2e-4 higher than Ipopt's; from
     |c|_inf = 6e-4 on a strand resting on a head, 1.2e-5 higher than where Gauss-Newton goes.
-    Gauss-Newton on L brings p into the right basin first.)
+    Gauss-Newton on L brings p into the right basin first.) An attempt whose full steps fail is
+    repeated at once with each step halved until the corrected point keeps |c|_inf within
+    NEWTON_GROWTH of where the step started (_newton_trial): the full step can be far off where
+    the reduced Hessian is indefinite; on horizontal(n=400, tip="pinned") it left |c|_inf 1.5e3,
+    every attempt failed, and Gauss-Newton crawled into max_iterations (R 5.25e-4, KKT distance
+    0.16), where the halved steps converge (R 3.52e-4). Halving every attempt instead doubled the
+    Newton steps of 2000-vertex grooms and moved one to another KKT point (R +2.6e-5).
 Stall: the rounding estimate of L can be too optimistic, and accepted steps that lower L by less than
     its rounding make no progress; STALL of them in a row end the inner loop, and on a feasible p the
     KKT distance decides convergence.
@@ -108,6 +114,8 @@ NEWTON_NEAR = 1e-4  # |c|_inf at or below which a stalled constraint whose SQP s
 NEWTON_STEPS = 12  # exact-Hessian SQP steps per attempt (module docstring, Newton-SQP)
 NEWTON_ATTEMPTS = 3  # attempts per solve
 NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row at a feasible p
+NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
+NEWTON_HALVINGS = 8  # ... at most this many times (_newton_trial)
 
 
 class _Model:
@@ -301,7 +309,8 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         if (not converged and attempts < NEWTON_ATTEMPTS
                 and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= NEWTON_NEAR))):
             attempts, feasible_rounds = attempts + 1, 0
-            newton = _newton_sqp(problem, model, p, counts, tol, kkt_tol)
+            newton = (_newton_sqp(problem, model, p, counts, tol, kkt_tol)
+                      or _newton_sqp(problem, model, p, counts, tol, kkt_tol, NEWTON_HALVINGS))
             if newton is not None:
                 p, c, distance = newton
                 violation = float(np.abs(c).max(initial=0.0))
@@ -338,7 +347,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer (command line: --option max_outer=N)")
 
 
-def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float):
+def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float, halvings: int = 0):
     """(p, c, KKT distance) after at most NEWTON_STEPS exact-Hessian SQP steps from the feasible or
     nearly feasible p (module docstring, Newton-SQP), or None unless they end at a point with
     |c|_inf <= tol, KKT distance <= kkt_tol and R no larger than at p (plus rounding).
@@ -346,9 +355,10 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
     Each step solves [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w) +
     sum lam_r c_r''(p) (lam: least-squares multipliers at p) on the variables strictly inside their
     boxes (linalg.saddle.SaddleFactor with the curvature, a band LU); a trial point that leaves
-    |c|_inf > tol gets the least diag(w)-norm correction back to c = 0 (constrained_step, the same
-    J). (The correction with the step's own factors, i.e. in the metric W, saved a factorization
-    per step but left 2 of 6 strands of groom(6, 2000) at max_iterations.)
+    |c|_inf > tol gets the least diag(w)-norm correction back to c = 0 (the same J), and with
+    ``halvings`` > 0 the step is shortened as _newton_trial says. (The correction with the step's
+    own factors, i.e. in the metric W, saved a factorization per step but left 2 of 6 strands of
+    groom(6, 2000) at max_iterations.)
     """
     lower, upper = problem.layout.lower, problem.layout.upper
     start_objective = problem.objective(p)
@@ -368,15 +378,8 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
         if not np.all(np.isfinite(step)):
             return None
         counts["newton_sqp"] += 1
-        trial = np.clip(x + step, lower, upper)
-        c_trial = problem.residual(trial)
-        if not np.abs(c_trial).max(initial=0.0) <= tol:
-            correction = constrained_step(J, model.w, np.zeros_like(x), c_trial, free)
-            if correction is None:
-                return None
-            trial = np.clip(trial + correction[0], lower, upper)
-            c_trial = problem.residual(trial)
-        if not np.all(np.isfinite(c_trial)):
+        trial, c_trial = _newton_trial(problem, model.w, J, x, step, c, free, tol, halvings)
+        if trial is None or not np.all(np.isfinite(c_trial)):
             return None
         x = trial
         if np.abs(c_trial).max(initial=0.0) <= tol:
@@ -386,6 +389,31 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
                     return x, c_trial, distance
                 return None
     return None
+
+
+def _newton_trial(problem: Problem, w, J, x, step, c, free, tol: float, halvings: int):
+    """(trial point, its c) of the Newton-SQP step from x: x + t step with the least diag(w)-norm
+    correction back to c = 0 where it leaves |c|_inf > tol, t = 1 halved (at most ``halvings``
+    times, the last trial kept) until the corrected point's |c|_inf is at most NEWTON_GROWTH times
+    max(tol, |c(x)|_inf); (None, None) if the correction's system is singular.
+    """
+    lower, upper = problem.layout.lower, problem.layout.upper
+    bound = NEWTON_GROWTH * max(tol, float(np.abs(c).max(initial=0.0)))
+    correction_factor = None
+    fraction = 1.0
+    for _ in range(halvings + 1):
+        trial = np.clip(x + fraction * step, lower, upper)
+        c_trial = problem.residual(trial)
+        if not np.abs(c_trial).max(initial=0.0) <= tol:
+            correction_factor = correction_factor or SaddleFactor(J, w, free)
+            if correction_factor.singular:
+                return None, None
+            trial = np.clip(trial + correction_factor.solve(np.zeros_like(x), c_trial)[0], lower, upper)
+            c_trial = problem.residual(trial)
+        if np.abs(c_trial).max(initial=0.0) <= bound:
+            break
+        fraction *= 0.5
+    return trial, c_trial
 
 
 def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float):

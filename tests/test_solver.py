@@ -237,6 +237,19 @@ def test_every_strand_size_converges_stably(vertices):
         assert result.iterations["gauss_newton"] < (60 if vertices < 10 else 10)
 
 
+def test_pinned_tip_of_a_long_strand_converges():
+    """A held tip makes the supports' reactions unknowns, and Newton-SQP finishes the solve
+    (alm._newton_sqp). On horizontal(n=400, tip="pinned") its full first step left |c|_inf 1.5e3
+    after the correction, every attempt failed, and Gauss-Newton crawled into max_iterations at
+    R 5.25e-4 (KKT distance 0.16); the attempt with halved steps (alm._newton_trial) converges."""
+    problem = sagfree.Problem(sagfree.scenes.horizontal(n=400, tip="pinned"))
+    result = sagfree.solve(problem)
+    assert result.status == "converged", result.message
+    solved = problem if result.floors is None else problem.with_lower_bounds(result.floors)
+    assert kkt_optimality(solved, result.p) <= KKT_TOL
+    assert result.objective < 5.25e-4 and result.stable
+
+
 @pytest.mark.parametrize("dense_column", [True, False])
 def test_least_squares_multipliers_minimize_the_scaled_lagrangian_gradient(dense_column, rng):
     """multipliers.least_squares_multipliers against dense least squares on a banded J, with a column that
