@@ -46,13 +46,9 @@ def _scaled_projected_gradient(p, gradient, scale, lower, upper):  # pragma: no 
     return largest
 
 
-
-
 def gradient_scale(weights: np.ndarray, J) -> np.ndarray:
     """h_j = w_j + ||J_{:,j}||^2, the diagonal of the Gauss-Newton Hessian at mu = 1."""
     return weights + column_norms(J) + 1e-300
-
-
 
 
 def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float:
