@@ -45,17 +45,20 @@ class FixedShapeFunctions:
     residual and its parameter Jacobian are evaluated), through its kinematics k = (kappa4, m):
 
     kinematics (y, reference) -> k (5), dk/dy (5 x 11); gradient (k, geometry, physical) -> dE/dk;
-    parameter_jacobian (k, geometry, physical) -> d(dE/dk)/d(physical) (5 x 7).
+    parameter_jacobian (k, geometry, physical) -> d(dE/dk)/d(physical) (5 x 7); hessian (k, geometry,
+    physical) -> d2E/dk2 (5 x 5).
 
     The energy depends on the DOFs only through k, so by the chain rule
     dE/dy = (dk/dy)^T dE/dk and d(dE/dy)/d(physical) = (dk/dy)^T d(dE/dk)/d(physical): with k and
     dk/dy evaluated once per shape, a residual or Jacobian no longer differentiates the frames,
-    transports and trigonometry of the kinematics, which halves the cost of both.
+    transports and trigonometry of the kinematics, which halves the cost of both. Where dE/dk = 0
+    (p0: the rest shape is q*'s own), d2E/dy2 = (dk/dy)^T d2E/dk2 dk/dy as well.
     """
 
     kinematics: BatchFunction
     gradient: BatchFunction
     parameter_jacobian: BatchFunction
+    hessian: BatchFunction
 
 
 def _derived(name: str, energy, y, inputs) -> list[ca.Function]:
@@ -117,7 +120,9 @@ def vertex_fixed_shape(variant: str = "4d", terms: tuple[str, ...] = ("bend", "t
     functions = [kinematics,
                  ca.Function("vertex_kinematics_gradient", [k_sym, geometry, physical], [ca.densify(gradient)]),
                  ca.Function("vertex_kinematics_parameter_jacobian", [k_sym, geometry, physical],
-                             [ca.densify(ca.jacobian(gradient, physical))])]
+                             [ca.densify(ca.jacobian(gradient, physical))]),
+                 ca.Function("vertex_kinematics_hessian", [k_sym, geometry, physical],
+                             [ca.densify(ca.hessian(energy, k_sym)[0])])]
     return FixedShapeFunctions(*batch_functions(functions))
 
 

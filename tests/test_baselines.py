@@ -7,6 +7,7 @@ import scipy.sparse as sp
 import sagfree
 from sagfree.formulation.symbolic import SymbolicNLP
 from sagfree.contract.optimality import KKT_TOL, kkt_optimality
+from sagfree.formulation.parameters import STIFFNESS_BLOCKS
 
 SMALL_AND_MEDIUM = {
     "horizontal": lambda: sagfree.scenes.horizontal(),
@@ -30,15 +31,19 @@ def dense_kkt_step(problem, p):
     return max(np.abs(solution[:F.size]).max(), (wrong / h).max())
 
 
-@pytest.mark.parametrize("stiffness", ["element", "strand"])
-def test_constrained_step_matches_a_dense_solve(stiffness, rng):
-    """linalg.saddle.constrained_step (band LU of the interleaved saddle system; SuperLU where the strand
-    multiplier's column is dense) against numpy on the same system, some variables on bounds."""
+@pytest.mark.parametrize("stiffness, fixed", [("element", "two"), ("strand", "two"), ("element", "stiffness")])
+def test_constrained_step_matches_a_dense_solve(stiffness, fixed, rng):
+    """linalg.saddle.constrained_step (band LU of the interleaved saddle system of the free variables;
+    SuperLU where the strand multiplier's column is dense) against numpy on the same system, some
+    variables on bounds: two, or every stiffness multiplier (the linear start's system)."""
     from sagfree.linalg.saddle import SaddleFactor, constrained_step
     problem = sagfree.Problem(sagfree.scenes.helix(n=25), stiffness=stiffness)
     p = problem.p0 + 0.3 * rng.random(problem.n_parameters) * (problem.upper - problem.p0)
     free = np.ones(problem.n_parameters, dtype=bool)
-    free[[3, 50]] = False  # on a bound: a row d_j = 0 in the band, left out of the dense system
+    if fixed == "two":
+        free[[3, 50]] = False  # on a bound: left out of both systems
+    else:
+        free &= ~problem.layout.block_mask(STIFFNESS_BLOCKS)
     w = problem.layout.weights * rng.uniform(0.5, 2.0, problem.n_parameters)
     J, c, g = problem.strand_jacobian(p), problem.residual(p), rng.standard_normal(problem.n_parameters)
     d, lam = constrained_step(J, w, g, c, free)

@@ -295,6 +295,24 @@ def dense_stability(pb, p):
     return values[0], vectors[:, 0]
 
 
+@pytest.mark.parametrize("curvature", ["4d", "2d-average", "2d-slerp"])
+def test_unstressed_hessian_by_the_chain_rule_equals_the_stencils(curvature):
+    """At q* and p0 the vertex stencils' Hessians come from (dk/dy)^T d2E/dk2 dk/dy (dE/dk = 0 there):
+    the same as the stencils' own d2E/dy2 to rounding, for every curvature variant; a p off p0
+    (stressed) takes the stencils' Hessian."""
+    pb = sagfree.Problem(sagfree.scenes.curly(n=15), curvature=curvature)
+    p0 = pb.p0
+    _, vertex = pb.stencil_inputs(p0, None, None)
+    (direct,) = pb.vertex_functions.hessian(*vertex)
+    chain = pb._hessian_blocks(p0, None, None)[1][1]
+    assert np.abs(chain - direct).max() <= 1e-12 * np.abs(direct).max()
+    assert pb.stability(p0) == pytest.approx(dense_stability(pb, p0)[0], rel=1e-6)
+    p = p0.copy()
+    p[pb.blocks["rest_curvature"]] += 0.5
+    _, vertex = pb.stencil_inputs(p, None, None)
+    assert np.array_equal(pb._hessian_blocks(p, None, None)[1][1], pb.vertex_functions.hessian(*vertex)[0])
+
+
 def test_stability_of_the_straight_rest_state():
     """Mass-normalized: omega^2 of the slowest mode, the Euler-Bernoulli cantilever's 1.875^4 E I /
     (rho A L^4) with the clamped length measured from the middle of the clamped first edge."""

@@ -44,6 +44,34 @@ def test_unstable_optimum_is_stabilized_and_holds_after_a_push(groom, k):
     assert pushed.holds and pushed.deviation <= 1e-3 and pushed.simulation.converged
 
 
+def test_floors_are_checked_by_restiffening_before_a_solve(groom):
+    """The first-order floors from a strongly unstable optimum fall short (lambda is concave in the
+    multipliers); raised again from the restiffened point (c kept, no solve) until restiffening onto
+    them is stable, and the solve on them is stable in one round."""
+    import sagfree.frontend.stabilize as stabilize
+    problem = sagfree.Problem(groom[11])
+    bare = sagfree.solve(problem.with_options(stabilize=False))
+    margin = problem.stability_margin
+    value, mode = problem.stability(bare.p, vector=True)
+    assert value < -margin
+    stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    first = stabilize._raised_floors(problem, bare.p, value, mode, stiffness)
+
+    def restiffened_stability(floors):
+        floored = problem.with_lower_bounds(floors)
+        raised = restiffen(floored, bare.p, np.maximum(bare.p, floored.lower))
+        assert np.abs(problem.residual(raised)).max() <= 1e-8  # the forces kept: still balanced
+        return floored.stability(raised)
+
+    assert restiffened_stability(first) < margin
+    checked = stabilize._floors_checked_by_restiffening(problem, bare.p, first, stiffness)
+    assert np.all(checked >= first) and np.any(checked > first)
+    assert restiffened_stability(checked) >= margin
+    result = sagfree.solve(problem)
+    assert result.iterations["stabilization"] == 1 and result.min_eigenvalue >= margin
+    assert np.array_equal(result.floors, checked)
+
+
 @pytest.mark.parametrize("options, strands", [(dict(stiffness="strand"), (55, 84)),
                                               (dict(couple_twist=False), (3, 4))])
 def test_stabilization_in_strand_mode_and_with_uncoupled_twist(groom, options, strands):

@@ -57,7 +57,7 @@ def _start_vector(n: int) -> np.ndarray:
 def _largest_inverse_eigenpair(factor, v0, steps, tolerance):  # pragma: no cover - compiled
     """Largest eigenvalue of (L L^T)^-1 and its Ritz vector, by Lanczos with full reorthogonalization."""
     n = v0.size
-    basis = np.zeros((steps + 1, n))
+    basis = np.empty((min(steps, 16) + 1, n))  # grown when Lanczos needs more (it rarely takes > 10)
     alpha, beta = np.zeros(steps), np.zeros(steps)
     basis[0] = v0 / np.sqrt(np.dot(v0, v0))
     w = np.empty(n)
@@ -79,5 +79,9 @@ def _largest_inverse_eigenpair(factor, v0, steps, tolerance):  # pragma: no cove
         last = k
         if abs(beta[k] * vectors[k, k]) <= tolerance * abs(theta) or beta[k] == 0.0:
             break
+        if k + 1 == basis.shape[0]:
+            grown = np.empty((min(steps, 2 * k) + 1, n))
+            grown[:k + 1] = basis
+            basis = grown
         basis[k + 1] = w / beta[k]
     return theta, ritz[:last + 1] @ basis[:last + 1]

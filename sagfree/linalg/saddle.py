@@ -23,12 +23,13 @@ class SaddleFactor:
     ``solve(gradient, c)`` is one pair of triangular solves. ``singular`` when the system is (J_F
     rank deficient: more constraints than free directions); then ``solve`` must not be called.
 
-    Factored by an LU with partial pivoting of the whole system. The variables off F are kept as
-    unknowns with the rows d_j = 0, so the system's pattern is J's whatever F is, and its unknowns
-    are interleaved along the strand (each parameter next to the rows its column touches,
-    _saddle_order): the system is then a band (half-width 25 on a 100-vertex element strand) that
-    LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU on the free variables'
-    system; a solve (dgbtrs) costs about a tenth of the factorization. A column that fills most rows
+    Factored by an LU with partial pivoting of the free variables' system, its unknowns interleaved
+    along the strand (each parameter next to the rows its column touches): the order of J's pattern
+    (_saddle_order, shared by the strands of a size) with the variables off F left out
+    (_kept_positions). The system is then a band (half-width 25 on a 100-vertex element strand with
+    every variable free, 19 at the linear start, whose stiffness multipliers are fixed) that
+    LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU; a solve (dgbtrs) costs
+    about a tenth of the factorization. A column that fills most rows
     (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
     system of F alone, assembled in compressed columns. ``curvature`` (the constraints' curvature in
     the exact Hessian of a Lagrangian, asc's Newton-SQP) couples the entries of each stencil, which
@@ -49,12 +50,12 @@ class SaddleFactor:
         order = _saddle_order(indptr, indices, self.rows)
         self._band = order is not None
         if self._band:
-            self._position, self._half = order
+            kept = np.concatenate([np.flatnonzero(self.free), np.arange(self.n, self.n + self.rows)])
+            self._kept, self._position = kept, _kept_positions(order[0], kept)
             rows, columns, values = _free_entries(curvature, self.free)
-            reach = np.abs(self._position[rows] - self._position[columns]).max(initial=0)
-            self._half = max(self._half, int(reach))
-            band = _saddle_band(indptr, indices, data, w, self.free, self._position, self._half, rows, columns,
-                                values)
+            self._half = _reduced_half(indptr, indices, self.free, self._position, rows, columns)
+            band = _saddle_band(indptr, indices, data, w, self.free, self._position, kept.size, self._half, rows,
+                                columns, values)
             self._lu, self._pivots, info = scipy.linalg.lapack.dgbtrf(band, self._half, self._half,
                                                                      overwrite_ab=True)
             self.singular = info != 0
@@ -71,11 +72,12 @@ class SaddleFactor:
         rhs = -np.concatenate([np.where(self.free, gradient, 0.0), c])
         n = self.n
         if self._band:
-            permuted = np.empty_like(rhs)
-            permuted[self._position] = rhs
-            solution, _ = scipy.linalg.lapack.dgbtrs(self._lu, self._half, self._half, permuted, self._pivots,
-                                                     overwrite_b=True)
-            solution = solution[self._position]
+            permuted = np.empty(self._kept.size)
+            permuted[self._position[self._kept]] = rhs[self._kept]
+            reduced, _ = scipy.linalg.lapack.dgbtrs(self._lu, self._half, self._half, permuted, self._pivots,
+                                                    overwrite_b=True)
+            solution = np.zeros(n + self.rows)
+            solution[self._kept] = reduced[self._position[self._kept]]
         else:
             reduced = self._lu.solve(np.concatenate([rhs[:n][self.free], rhs[n:]]))
             solution = np.zeros(n + self.rows)
@@ -142,6 +144,33 @@ def _saddle_order(indptr, indices, rows):
     return order
 
 
+def _kept_positions(position: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """Positions of the unknowns ``kept`` (indices into [d; lam]) in the band order of the system
+    without the others, which keep their relative order from ``position`` (_saddle_order); -1 for
+    the unknowns left out."""
+    in_order = np.zeros(position.size, dtype=bool)
+    in_order[position[kept]] = True
+    rank = np.cumsum(in_order) - 1
+    reduced = np.full(position.size, -1, dtype=np.int64)
+    reduced[kept] = rank[position[kept]]
+    return reduced
+
+
+@numba.njit(cache=True)
+def _reduced_half(indptr, indices, free, position, curvature_rows, curvature_columns):  # pragma: no cover
+    """Half-bandwidth of the saddle system of the free variables in the order ``position``: the
+    largest distance between a free parameter and a row of its column, or two coupled parameters."""
+    n = indptr.size - 1
+    half = 0
+    for j in range(n):
+        if free[j]:
+            for k in range(indptr[j], indptr[j + 1]):
+                half = max(half, abs(position[j] - position[n + indices[k]]))
+    for k in range(curvature_rows.size):
+        half = max(half, abs(position[curvature_rows[k]] - position[curvature_columns[k]]))
+    return half
+
+
 def _free_entries(matrix, free):
     """(rows, columns, values) of a sparse matrix's entries between free variables (None: none)."""
     if matrix is None:
@@ -152,25 +181,22 @@ def _free_entries(matrix, free):
 
 
 @numba.njit(cache=True)
-def _saddle_band(indptr, indices, data, w, free, position, half, curvature_rows, curvature_columns,
+def _saddle_band(indptr, indices, data, w, free, position, size, half, curvature_rows, curvature_columns,
                  curvature_values):  # pragma: no cover - compiled
-    """[[W_F + C_FF + I_A, J_F^T], [J_F, 0]] (W = diag(w), C the curvature entries between free
-    variables as triplets, I_A the rows d_j = 0 of the variables off F) in LAPACK general band
-    storage for dgbtrf: entry (i, j) of the permuted system at [2 half + i - j, j], in Fortran order
-    (LAPACK's own, which spares f2py a copy of the band)."""
+    """[[W_FF + C_FF, J_F^T], [J_F, 0]] (W = diag(w), C the curvature entries between free variables
+    as triplets) in LAPACK general band storage for dgbtrf, its ``size`` unknowns (the free
+    parameters and the rows) at ``position`` (-1: left out): entry (i, j) of the permuted system at
+    [2 half + i - j, j], in Fortran order (LAPACK's own, which spares f2py a copy of the band)."""
     n = indptr.size - 1
-    size = position.size
     columns = np.zeros((size, 3 * half + 1))  # columns[j, r] = band[r, j]
     for j in range(n):
-        pj = position[j]
         if free[j]:
+            pj = position[j]
             columns[pj, 2 * half] = w[j]
             for k in range(indptr[j], indptr[j + 1]):
                 pr = position[n + indices[k]]
                 columns[pj, 2 * half + pr - pj] = data[k]  # J: row r, column j
                 columns[pr, 2 * half + pj - pr] = data[k]  # J^T: row j, column r
-        else:
-            columns[pj, 2 * half] = 1.0
     for k in range(curvature_values.size):
         pi, pj = position[curvature_rows[k]], position[curvature_columns[k]]
         columns[pj, 2 * half + pi - pj] += curvature_values[k]
