@@ -22,8 +22,7 @@ make its optimum stable. They are found by a cutting-plane loop on the bare prob
    keeps c = 0 (restiffen), so lambda there is one eigenvalue; while it is below the margin, the
    step is repeated from there (at most FLOOR_STEPS times). From a strongly unstable optimum
    (lambda ~ -10 x the margin) the first step falls short by the concavity, and each shortfall cost
-   a whole re-solve: on groom(300, 100, seed=0) 93 rounds for 50 strands, 51 with these steps, R of
-   those strands 0.08% lower;
+   a whole re-solve (groom(300, 100, seed=0): 93 rounds without these steps, 51 with them);
 3. solve the floored problem from the solver's own start again, and repeat.
 
 The floors of a strand must not depend on the solver, or solvers would be compared on different

@@ -57,7 +57,7 @@ def _start_vector(n: int) -> np.ndarray:
 def _largest_inverse_eigenpair(factor, v0, steps, tolerance):  # pragma: no cover - compiled
     """Largest eigenvalue of (L L^T)^-1 and its Ritz vector, by Lanczos with full reorthogonalization."""
     n = v0.size
-    basis = np.empty((min(steps, 16) + 1, n))  # grown when Lanczos needs more (it rarely takes > 10)
+    basis = np.empty((min(steps, 16) + 1, n))  # grown when Lanczos takes more steps
     alpha, beta = np.zeros(steps), np.zeros(steps)
     basis[0] = v0 / np.sqrt(np.dot(v0, v0))
     w = np.empty(n)
