@@ -400,13 +400,14 @@ class Problem:
     def _hessian_blocks(self, p, q, frames):
         """[(stencil DOF indices, stencil Hessians d2E/dy2)] of the edge and vertex stencils. At q* and
         p0 (the unstressed strand, whose smallest eigenvalue sets ``stability_margin``) the vertex
-        stencils' dE/dk vanishes (the rest curvatures and twists are q*'s own), so their Hessians are
-        (dk/dy)^T d2E/dk2 dk/dy with the kinematics at q* (stencils.FixedShapeFunctions): no second
-        derivative of the frames and transports (0.35 -> 0.09 ms with the edge stencils' at 100 vertices)."""
+        stencils' dE/dk vanishes to rounding (the rest curvatures and twists are q*'s own), so their
+        Hessians are (dk/dy)^T d2E/dk2 dk/dy with the kinematics at q* (stencils.FixedShapeFunctions):
+        no second derivative of the frames and transports (0.35 -> 0.09 ms with the edge stencils'
+        at 100 vertices)."""
         edge, vertex = self.stencil_inputs(p, q, frames)
         if q is None and frames is None and np.array_equal(p, self.layout.p0):
-            _, transposed = self.kinematics_at_rest
-            (by_kinematics,) = self.vertex_fixed_functions.hessian(self.kinematics_at_rest[0], *vertex[2:])
+            kinematics, transposed = self.kinematics_at_rest
+            (by_kinematics,) = self.vertex_fixed_functions.hessian(kinematics, *vertex[2:])
             vertex_hessians = transposed @ by_kinematics @ transposed.transpose(0, 2, 1)
         else:
             (vertex_hessians,) = self.vertex_functions.hessian(*vertex)
