@@ -32,6 +32,7 @@ PARTS = [
     (Problem, "__init__", "Problem construction"),
     (Problem, "_stability_at_rest", "stability at q* (margin at p0, each Result's p)"),
     (stabilize, "floors_loop", "stabilization rounds (floors, re-solves)"),
+    (stabilize, "_floors_checked_by_restiffening", "floors checked by restiffening (in the rounds)"),
 ]
 
 
