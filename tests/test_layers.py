@@ -97,9 +97,7 @@ def test_default_groom_results_unchanged_by_the_layout():
     result (first stored before the shared layer moved out of solvers/, bit-identical after the move;
     stored anew when the problem itself changed: the regularizer's length shares and the stability
     floors; and when asc's method did: the crawl test of its inner solves, Newton-SQP after one
-    crawling round, stiffness floors checked by restiffening; and when the saddle systems' band
-    order did: their LU pivots in another order, p moved within the solver's tolerance, 1.6e-8).
-    1e-12 leaves room for another CPU's rounding, far below any change of method."""
+    crawling round, stiffness floors checked by restiffening). 1e-12 leaves room for another CPU's rounding, far below any change of method."""
     stored = np.load(ROOT / "tests" / "data" / "groom_20_50_seed0_asc.npz")
     results = sagfree.optimize(sagfree.scenes.groom(20, 50, seed=0), solver="asc", jobs=1)
     assert [r.status for r in results] == list(stored["status"])

@@ -11,7 +11,6 @@ import numba
 import numpy as np
 import scipy.linalg.lapack
 import scipy.sparse as sp
-import scipy.sparse.csgraph  # noqa: F401 - sp.csgraph.reverse_cuthill_mckee
 import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
 
 from .band import csc_arrays, dense_columns
@@ -24,12 +23,12 @@ class SaddleFactor:
     ``solve(gradient, c)`` is one pair of triangular solves. ``singular`` when the system is (J_F
     rank deficient: more constraints than free directions); then ``solve`` must not be called.
 
-    Factored by an LU with partial pivoting of the free variables' system, its unknowns ordered
-    along the strand (each parameter near the rows its column touches): the order of J's pattern
+    Factored by an LU with partial pivoting of the free variables' system, its unknowns interleaved
+    along the strand (each parameter next to the rows its column touches): the order of J's pattern
     (_saddle_order, shared by the strands of a size) with the variables off F left out
-    (_kept_positions). The system is then a band (half-width 20 on a 100-vertex element strand with
-    every variable free, 15 at the linear start, whose stiffness multipliers are fixed) that
-    LAPACK's dgbtrf factors in O(n), over 2.5 times faster than SuperLU; a solve (dgbtrs) costs
+    (_kept_positions). The system is then a band (half-width 25 on a 100-vertex element strand with
+    every variable free, 19 at the linear start, whose stiffness multipliers are fixed) that
+    LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU; a solve (dgbtrs) costs
     about a tenth of the factorization. A column that fills most rows
     (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
     system of F alone, assembled in compressed columns. ``curvature`` (the constraints' curvature in
@@ -117,12 +116,9 @@ _ORDERS: dict = {}
 
 def _saddle_order(indptr, indices, rows):
     """(position of each unknown [d; lam] in the band order, half-bandwidth) of the system
-    [[W, J^T], [J, 0]], or None if a column of J fills most rows: the narrower of two orders along
-    the strand. Interleaved: a parameter at the middle row its column touches (an empty column after
-    the previous parameter), the rows of J at their own index, sorted stably, parameters before rows
-    at the same place. Reverse Cuthill-McKee on the system's graph: half-width 20 against the
-    interleaved 25 on element strands, which makes the band LU a third faster (0.44 -> 0.29 ms at
-    100 vertices, 13.9 -> 7.9 ms at 2000)."""
+    [[W, J^T], [J, 0]], or None if a column of J fills most rows. A parameter is placed at the
+    middle row its column touches (an empty column after the previous parameter), the rows of J
+    at their own index; sorted stably, parameters before rows at the same place."""
     key = (rows, indptr.tobytes(), indices.tobytes())
     if key in _ORDERS:
         return _ORDERS[key]
@@ -137,14 +133,11 @@ def _saddle_order(indptr, indices, rows):
         middle[filled] = 0.5 * (np.minimum.reduceat(indices, starts) + np.maximum.reduceat(indices, starts))
         middle = np.maximum.accumulate(np.where(filled, middle, -np.inf))  # empty: the previous place
         keys = np.concatenate([np.where(np.isfinite(middle), middle, 0.0), np.arange(rows) + 0.25])
+        position = np.empty(n + rows, dtype=np.int64)
+        position[np.argsort(keys, kind="stable")] = np.arange(n + rows)
         column = np.repeat(np.arange(n), counts)
-        interleaved = np.empty(n + rows, dtype=np.int64)
-        interleaved[np.argsort(keys, kind="stable")] = np.arange(n + rows)
-        pattern = sp.csr_matrix((np.ones(column.size), (n + indices, column)), shape=(n + rows, n + rows))
-        cuthill_mckee = np.empty(n + rows, dtype=np.int64)
-        cuthill_mckee[sp.csgraph.reverse_cuthill_mckee(pattern + pattern.T, symmetric_mode=True)] = np.arange(n + rows)
-        order = min(((position, int(np.abs(position[column] - position[n + indices]).max(initial=0)))
-                     for position in (interleaved, cuthill_mckee)), key=lambda candidate: candidate[1])
+        half = int(np.abs(position[column] - position[n + indices]).max(initial=0))
+        order = (position, half)
     if len(_ORDERS) >= 16:
         _ORDERS.pop(next(iter(_ORDERS)))
     _ORDERS[key] = order
