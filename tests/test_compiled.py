@@ -18,3 +18,49 @@ def test_compiled_and_virtual_machine_agree(rng):
     y = rng.standard_normal((5, 6))
     assert np.allclose(edge.geometry(y)[0], np.linalg.norm(y[:, 3:] - y[:, :3], axis=1), rtol=1e-15)
     assert edge.energy(np.empty((0, 6)), np.empty((0, 2)), np.empty((0, 2)))[0].shape == (0,)
+
+
+def _portable_twin(function, tmp_path) -> BatchFunction:
+    """``function`` built by the portable command (without MACHINE_FLAGS), outside the cache."""
+    import ctypes
+    import subprocess
+
+    from sagfree.formulation.compiled import _source
+    c_file, library = tmp_path / "portable.c", tmp_path / "portable.so"
+    c_file.write_text(_source([function]))
+    subprocess.run(["cc", "-O2", "-fPIC", "-shared", "-o", str(library), str(c_file), "-lm"], check=True)
+    return BatchFunction(function, getattr(ctypes.CDLL(str(library)), f"{function.name()}_batch"))
+
+
+def test_machine_build_rounds_like_the_portable_one(rng, tmp_path):
+    """MACHINE_FLAGS keep every operation's rounding (no fused multiply-adds): the same bits as a
+    portable -O2 build, so results do not depend on the machine a strand was solved on."""
+    stencil = vertex_stencil("4d")
+    args = [rng.standard_normal((50, 11)), rng.standard_normal((50, 13)), rng.uniform(1, 2, (50, 8)),
+            rng.standard_normal((50, 7))]
+    portable = _portable_twin(stencil.parameter_jacobian.function, tmp_path)
+    for a, b in zip(stencil.parameter_jacobian(*args), portable(*args)):
+        assert np.array_equal(a, b)
+
+
+def test_a_compiler_without_machine_flags_gets_the_portable_build(tmp_path, monkeypatch):
+    import casadi as ca
+
+    from sagfree.formulation import compiled
+    refusing = tmp_path / "cc-refusing"
+    refusing.write_text('#!/bin/sh\nfor a in "$@"; do [ "$a" = "-march=native" ] && exit 1; done\nexec cc "$@"\n')
+    refusing.chmod(0o755)
+    monkeypatch.setenv("CC", str(refusing))
+    monkeypatch.setenv("SAGFREE_CACHE", str(tmp_path / "cache"))
+    x = ca.SX.sym("x", 2)
+    (product,) = compiled.batch_functions([ca.Function("refused_flags_product", [x], [x[0] * x[1] + x[0]])])
+    assert product.compiled
+    assert np.array_equal(product(np.array([[2.0, 3.0], [4.0, 0.5]]))[0], [8.0, 6.0])
+
+
+def test_the_cache_key_holds_the_machine(monkeypatch):
+    """A library built with -march=native on one CPU is never loaded on another (a shared cache)."""
+    from sagfree.formulation import compiled
+    here = compiled._library("int f;", "stencils")
+    monkeypatch.setattr(compiled, "cpu_identity", lambda: "another cpu")
+    assert compiled._library("int f;", "stencils") != here
