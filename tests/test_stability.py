@@ -116,6 +116,22 @@ def test_margin_is_a_tenth_of_the_unstressed_strands_eigenvalue_unless_given():
         sagfree.Problem(strand, min_eigenvalue=float("nan"))
 
 
+def test_margin_bound_gives_the_exact_verdict(groom):
+    """meets_margin decides by the Rayleigh bound where it can, with the verdict of the exact
+    comparison: on stable bare optima (the bound decides) and on saddles (it cannot)."""
+    decided_by_bound = 0
+    for k in (0, 1, 2, 3, 11):
+        problem = sagfree.Problem(groom[k], stabilize=False)
+        p = sagfree.solve(problem).p
+        verdict = problem.meets_margin(p)
+        decided_by_bound += "stability_margin" not in problem.__dict__
+        assert verdict == (problem.stability(p) >= problem.stability_margin)
+        mode = problem.stability(p, vector=True)[1]
+        quotient = mode @ (problem.hessian(problem.p0) @ mode) / (problem.dof_masses @ mode**2)
+        assert quotient >= problem.stability(problem.p0) * (1 - 1e-9)  # the bound it rests on
+    assert decided_by_bound == 3  # 1 and 11 are saddles: the margin was computed for them
+
+
 def test_every_solver_reaches_the_same_stabilized_optimum(groom):
     """Ipopt runs the same loop (frontend.stabilize) around its own solves and reaches ours."""
     problem = sagfree.Problem(groom[11])

@@ -83,7 +83,7 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
     result = function(problem, **options)
     stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
     if (not problem.stabilize or not stiffness.any() or result.status != "converged"
-            or result.min_eigenvalue >= problem.stability_margin):
+            or problem.meets_margin(result.p)):
         return result
     first_objective, counts, history = result.objective, dict(result.iterations), list(result.history)
     setup = result.setup_time
