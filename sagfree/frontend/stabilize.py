@@ -92,8 +92,7 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
         counts = _add(counts, result.iterations)
     else:  # the floors of asc's loop, then this solver on the floored problem from its own solution
         floored, _, rounds, _ = floors_loop(solve_alm, problem, {})
-        start = restiffen(floored, result.p, np.maximum(result.p, floored.layout.lower))
-        result = function(floored, **{**options, "p_start": start})
+        result = function(floored, **{**options, "p_start": _restiffened(floored, result.p)})
         counts = _add(counts, result.iterations)
         setup += result.setup_time
         value = floored.stability(result.p)
@@ -168,15 +167,20 @@ def _floors_checked_by_restiffening(problem: Problem, p: np.ndarray, floors: np.
     at most FLOOR_STEPS first-order steps, each from the restiffened point."""
     for _ in range(FLOOR_STEPS):
         floored = problem.with_lower_bounds(floors)
-        restiffened = restiffen(floored, p, np.maximum(p, floored.layout.lower))
+        restiffened = _restiffened(floored, p)
         value, mode = floored.stability(restiffened, vector=True)
         if value >= problem.stability_margin:
             break
-        more = _raised_floors(floored, restiffened, value, mode, stiffness)
+        more = _raised_floors(floored, restiffened, value, mode, stiffness)  # >= floors: it starts from them
         if more is None:
             break
-        floors = np.maximum(floors, more)
+        floors = more
     return floors
+
+
+def _restiffened(floored: Problem, p: np.ndarray) -> np.ndarray:
+    """p raised onto the floors of ``floored`` with its forces kept (rest_change.restiffen)."""
+    return restiffen(floored, p, np.maximum(p, floored.layout.lower))
 
 
 def _add(counts: dict, more: dict) -> dict:
