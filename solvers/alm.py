@@ -513,8 +513,10 @@ def least_residual(problem: Problem, starts: list[np.ndarray], counts: dict, qp_
     the box (eps = LEAST_RESIDUAL_TIEBREAK) by projected Levenberg-Marquardt from each of ``starts``
     (the point where the augmented Lagrangian stalled and its start: the problem is nonconvex, and
     either can be the better basin), keeping the lowest. Each step is a box QP on diag(eps w +
-    damping) + J^T J solved by MPRGP with the active-set Cholesky, then an Armijo line search; a run
-    stops when a step lowers the objective by less than 1e-12 of itself. |c| is the force on each
+    damping) + J^T J solved by MPRGP with the active-set Cholesky, warm-started with the previous
+    step's active bounds (as the Gauss-Newton QPs: without it each QP started from the free face and
+    walked the active set back, 2.5x the factorizations), then an Armijo line search; a run stops
+    when a step lowers the objective by less than 1e-12 of itself. |c| is the force on each
     free DOF over its weight, so this is the weighted least-squares force of the predecessor's
     objective f^T M^-1 f with the weights of c. Its steps are counted as ``least_residual``.
     """
@@ -535,11 +537,15 @@ def _least_residual_run(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: 
 
     c = problem.residual(p)
     value = objective(p, c)
+    at_lower, at_upper = p <= lower, p >= upper
     for _ in range(max_steps):
         J = problem.strand_jacobian(p)
         gradient = J.T @ c + eps * w * (p - p0)
         hessian = gram(J, eps * w + 1e-12 + 1e-11 * column_norms(J), 1.0, border)
-        qp = solve_box_qp(hessian, -gradient, lower - p, upper - p, rtol=qp_rtol)
+        d_lower, d_upper = lower - p, upper - p  # warm start: the previous step's active bounds
+        qp = solve_box_qp(hessian, -gradient, d_lower, d_upper, rtol=qp_rtol,
+                          x0=np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0)))
+        at_lower, at_upper = qp.x <= d_lower, qp.x >= d_upper
         counts["least_residual"] += 1
         for key in ("cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
                     "factored_rows"):
