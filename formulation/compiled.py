@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import hashlib
 import functools
+import hashlib
 import os
 import platform
 import signal

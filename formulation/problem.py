@@ -205,10 +205,10 @@ class Problem:
     def meets_margin(self, p) -> bool:
         """``stability(p) >= stability_margin`` at q*, deciding without the margin's own eigenvalue
         where a bound can: for the mode v of p the Rayleigh quotient gives lambda_0 <= v^T H(p0) v /
-        v^T M v, so lambda(p) >= STABILITY_FRACTION times that quotient proves the
-        margin (with 1e-8 to spare for the eigensolver's tolerance, so the verdict is the exact
-        comparison's). A converged strand usually clears it by far, and the unstressed Hessian
-        (chain rule, ``_hessian_blocks``) costs a third of the Lanczos run it saves."""
+        v^T M v, so lambda(p) >= STABILITY_FRACTION times that quotient proves the margin (with
+        1e-8 to spare for the eigensolver's tolerance, so the verdict is the exact comparison's). A
+        converged strand usually clears it by far, and the unstressed Hessian (chain rule,
+        ``_hessian_blocks``) costs a third of the Lanczos run it saves."""
         value, mode = self.stability(p, vector=True)
         if self.min_eigenvalue is None and "stability_margin" not in self.__dict__:
             band = self.hessian_band(self.layout.p0)

@@ -1,7 +1,14 @@
-"""Compiled stencil evaluation agrees with CasADi's virtual machine (the fallback)."""
+"""Compiled stencil evaluation agrees with CasADi's virtual machine (the fallback), rounds alike on
+every machine, and falls back to a portable build where the compiler refuses the machine's flags."""
+import ctypes
+import os
+import subprocess
+
+import casadi as ca
 import numpy as np
 
-from sagfree.formulation.compiled import BatchFunction
+from sagfree.formulation import compiled
+from sagfree.formulation.compiled import BatchFunction, _source
 from sagfree.formulation.stencils import edge_stencil, vertex_stencil
 
 
@@ -22,13 +29,9 @@ def test_compiled_and_virtual_machine_agree(rng):
 
 def _portable_twin(function, tmp_path) -> BatchFunction:
     """``function`` built by the portable command (without MACHINE_FLAGS), outside the cache."""
-    import ctypes
-    import subprocess
-
-    from sagfree.formulation.compiled import _source
     c_file, library = tmp_path / "portable.c", tmp_path / "portable.so"
     c_file.write_text(_source([function]))
-    subprocess.run(["cc", "-O2", "-fPIC", "-shared", "-o", str(library), str(c_file), "-lm"], check=True)
+    subprocess.run([os.environ.get("CC", "cc"), "-O2", "-fPIC", "-shared", "-o", str(library), str(c_file), "-lm"], check=True)
     return BatchFunction(function, getattr(ctypes.CDLL(str(library)), f"{function.name()}_batch"))
 
 
@@ -44,9 +47,6 @@ def test_machine_build_rounds_like_the_portable_one(rng, tmp_path):
 
 
 def test_a_compiler_without_machine_flags_gets_the_portable_build(tmp_path, monkeypatch):
-    import casadi as ca
-
-    from sagfree.formulation import compiled
     refusing = tmp_path / "cc-refusing"
     refusing.write_text('#!/bin/sh\nfor a in "$@"; do [ "$a" = "-march=native" ] && exit 1; done\nexec cc "$@"\n')
     refusing.chmod(0o755)
@@ -60,7 +60,6 @@ def test_a_compiler_without_machine_flags_gets_the_portable_build(tmp_path, monk
 
 def test_the_cache_key_holds_the_machine(monkeypatch):
     """A library built with -march=native on one CPU is never loaded on another (a shared cache)."""
-    from sagfree.formulation import compiled
     here = compiled._library("int f;", "stencils")
     monkeypatch.setattr(compiled, "cpu_identity", lambda: "another cpu")
     assert compiled._library("int f;", "stencils") != here
