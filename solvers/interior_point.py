@@ -28,6 +28,15 @@ MAX_ITERATIONS = 60
 TO_BOUNDARY = 0.99  # fraction of the step to the boundary of the positive orthant
 
 
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) ``interior_point`` for the argument types solve_box_qp
+    passes, on a 2-variable QP. Only a QP whose active set walks reaches it, so no warm-up strand
+    does: without this its first compilation (~2.6 s) landed in the wall time of a timed batch
+    (frontend.warm calls it before any)."""
+    interior_point(np.array([[2.0, 2.0], [0.5, 0.0]]), np.zeros((0, 2)), np.zeros((0, 0)), np.ones(2),
+                   np.zeros(2), np.ones(2), np.empty(2), 1e-10)
+
+
 @numba.njit(cache=True)
 def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # pragma: no cover
     """x <- an approximate minimizer, inside the box up to the rounding of the updates x + alpha dx

@@ -8,7 +8,8 @@ options, untimed: the batch runner does it in every process it solves in (a fork
 its parent's), ``sagfree.solve`` before its first call. What stays per strand size (building Ipopt's
 instance for a new size) is the solver's own ``Result.setup_time``, kept out of ``Result.time``.
 Strands resting on bodies run further compiled code (contact detection and forces, stability on the
-bodies' tangent planes): with bodies, the warm-up strand rests on the first of them.
+bodies' tangent planes): with bodies, the warm-up strand rests on the first of them. Kernels that
+only rare branches reach (the QPs' interior-point fallback) are compiled on their own.
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ import numpy as np
 from sagfree.formulation.bodies import parse_body
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.strand import Strand
+from sagfree.solvers import interior_point
 
 from .stabilize import solve_stabilized
 from .table import solver_entry
@@ -136,6 +138,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
         return 0.0
     start = time.perf_counter()
     _WARM.add(key)
+    _quietly(interior_point.compile_kernels)
     entry = solver_entry(solver)
     _quietly(lambda: solve_stabilized(entry.function, _warm_strand(problem_options or {}),
                                       {**_structure_options(solver_options), **entry.warm_options}))
