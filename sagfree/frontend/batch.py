@@ -55,6 +55,8 @@ def solve_strand(strand: Strand, solver: str = "asc", solver_options: dict | Non
                              time.perf_counter() - start)
 
 
+#: Seconds to wait for a process pool's manager thread after its workers were killed.
+MANAGER_JOIN = 10.0
 #: Largest chunk of strands sent to a worker at once (a 100-vertex strand takes ~10 ms).
 MAX_CHUNK = 64
 
@@ -161,9 +163,13 @@ def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, tim
             process.kill()
         raise
     finally:
-        # abandoning live workers (wait=False) races the pool's manager thread at interpreter exit
-        # ("Exception ignored ... OSError: [Errno 9] Bad file descriptor"); idle ones are joined
+        # idle workers are joined; killed ones are not waited for, but the pool's manager thread is
+        # (it ends once it sees them dead): left running, it raced interpreter exit on its wakeup
+        # pipe ("Exception ignored ... OSError: [Errno 9] Bad file descriptor" after a Ctrl-C)
+        manager = getattr(pool, "_executor_manager_thread", None)
         pool.shutdown(wait=not killed, cancel_futures=True)
+        if killed and manager is not None:
+            manager.join(timeout=MANAGER_JOIN)
     return results
 
 
