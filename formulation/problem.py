@@ -16,7 +16,7 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, principal_band_gather
+from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, principal_band_gather, quadratic_form
 from sagfree.linalg.eigen import smallest_eigenpair
 from sagfree.linalg.timing import MODEL, timed
 
@@ -211,9 +211,7 @@ class Problem:
         ``_hessian_blocks``) costs a third of the Lanczos run it saves."""
         value, mode = self.stability(p, vector=True)
         if self.min_eigenvalue is None and "stability_margin" not in self.__dict__:
-            band = self.hessian_band(self.layout.p0)
-            curvature = band[0] @ mode**2 + 2.0 * sum(band[k, :-k] @ (mode[:-k] * mode[k:])
-                                                       for k in range(1, band.shape[0]))
+            curvature = quadratic_form(self.hessian_band(self.layout.p0), mode)
             if value >= STABILITY_FRACTION * curvature / (self.dof_masses @ mode**2) * (1.0 + 1e-8):
                 return True
         return value >= self.stability_margin

@@ -226,7 +226,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             counts["gauss_newton"] += 1
             # warm start: the bounds active in the previous step's QP are active again
             d_lower, d_upper = lower - p, upper - p
-            start_step = np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0))
+            start_step = _on_previous_bounds(at_lower, at_upper, d_lower, d_upper)
             for damping in DAMPING:  # escalate only if rounding breaks the factorization
                 qp = solve_box_qp(model.hessian(J, mu, damping), -gradient, d_lower, d_upper,
                                   x0=start_step, rtol=qp_rtol, preconditioner=preconditioner)
@@ -454,6 +454,12 @@ def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float):
     return trial, c_trial, lam
 
 
+def _on_previous_bounds(at_lower, at_upper, d_lower, d_upper) -> np.ndarray:
+    """A box QP's warm start: the step onto the bounds the previous step's QP ended on (``at_lower``,
+    ``at_upper``), 0 elsewhere; MPRGP then starts from that active set."""
+    return np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0))
+
+
 def _crawls(progress: list[tuple[float, float]]) -> bool:
     """True if neither |c|_inf nor the scaled projected gradient fell by CRAWL_DROP over the last
     CRAWL_WINDOW Gauss-Newton steps of an inner solve (module docstring, Crawl)."""
@@ -542,9 +548,9 @@ def _least_residual_run(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: 
         J = problem.strand_jacobian(p)
         gradient = J.T @ c + eps * w * (p - p0)
         hessian = gram(J, eps * w + 1e-12 + 1e-11 * column_norms(J), 1.0, border)
-        d_lower, d_upper = lower - p, upper - p  # warm start: the previous step's active bounds
+        d_lower, d_upper = lower - p, upper - p
         qp = solve_box_qp(hessian, -gradient, d_lower, d_upper, rtol=qp_rtol,
-                          x0=np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0)))
+                          x0=_on_previous_bounds(at_lower, at_upper, d_lower, d_upper))
         at_lower, at_upper = qp.x <= d_lower, qp.x >= d_upper
         counts["least_residual"] += 1
         for key in ("cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
