@@ -149,6 +149,85 @@ def _evaluate_slots(constant, linked, factor, source, p):  # pragma: no cover - 
     return out
 
 
+
+@dataclass(frozen=True)
+class _LayoutStructure:
+    """What a ParameterLayout's shape alone fixes: each block's entries in p (read-only arrays), the
+    size of p and the entry of p behind each physical slot of each stencil (-1: a constant)."""
+
+    blocks: dict
+    size: int
+    edge_index: np.ndarray    # (n - 1, 2)
+    vertex_index: np.ndarray  # (n - 2, 7)
+
+
+@functools.lru_cache(maxsize=16)
+def _layout_structure(n_vertices: int, active: tuple, strand_level: bool, couple_twist: bool, contacts: bytes,
+                      contact_width: int) -> _LayoutStructure:
+    """The _LayoutStructure of a layout, shared by the strands of a groom (their layouts differ only
+    in values: it was ~60% of a 100-vertex layout's construction). ``contacts``: the bytes of the
+    int contact vertex array."""
+    n_edges, n_inner = n_vertices - 1, n_vertices - 2
+    contacts = np.frombuffer(contacts, dtype=int)
+    # ---- positions of each block's entries in p, along the strand ----
+    # order: [edge 0][vertex 1][edge 1] ... [vertex n-2][edge n-2], blocks in BLOCKS order
+    edge_widths = {b: w for b, w in _EDGE_BLOCKS.items() if b in active}
+    vertex_widths = {b: w for b, w in _VERTEX_BLOCKS.items() if b in active}
+    stride = sum(edge_widths.values()) + sum(vertex_widths.values())
+    blocks = {}
+    for widths, count, start in ((edge_widths, n_edges, 0), (vertex_widths, n_inner, sum(edge_widths.values()))):
+        for b, w in widths.items():
+            first = start + stride * np.arange(count)
+            blocks[b] = (first[:, None] + np.arange(w)).ravel()
+            start += w
+    blocks = {b: blocks[b] for b in BLOCKS if b in blocks}
+    size = stride * n_edges - sum(vertex_widths.values()) * (n_edges - n_inner)
+    if contacts.size:
+        # contact of vertex i right after vertex i's entries (after edge i - 1's if it has none;
+        # the tip's after the last edge): shift every later entry by the contacts before it
+        vertex_width = sum(vertex_widths.values())
+        after = np.where(contacts <= n_inner, sum(edge_widths.values()) + stride * (contacts - 1) + vertex_width, size)
+        for b, ix in blocks.items():
+            blocks[b] = ix + contact_width * np.searchsorted(after, ix, side="right")
+        blocks[CONTACT_BLOCK] = ((after + contact_width * np.arange(contacts.size))[:, None]
+                                 + np.arange(contact_width)).ravel()
+        size += contact_width * contacts.size
+    size += int(strand_level)
+    if strand_level:
+        blocks[STRAND_BLOCK] = np.array([size - 1])
+
+    def slot(n, block, element_index):
+        if block in blocks:
+            return blocks[block][element_index]
+        if strand_level and block in STIFFNESS_BLOCKS:
+            return np.full(n, size - 1)
+        return np.full(n, -1)
+
+    edges_all, inner = np.arange(n_edges), np.arange(n_inner)
+    curvature_rows = lambda k: 2 * inner + k if "rest_curvature" in blocks else None  # noqa: E731
+    twist_block = "twist_stiffness" if "twist_stiffness" in blocks else (
+        "bend_stiffness" if couple_twist else "twist_stiffness")
+    edge_index = np.stack([slot(n_edges, "rest_length", edges_all), slot(n_edges, "stretch_stiffness", edges_all)],
+                          axis=1)
+    vertex_index = np.stack([
+        slot(n_inner, "rest_length", inner), slot(n_inner, "rest_length", inner + 1),
+        slot(n_inner, "rest_curvature", curvature_rows(0)), slot(n_inner, "rest_curvature", curvature_rows(1)),
+        slot(n_inner, "rest_twist", inner), slot(n_inner, "bend_stiffness", inner), slot(n_inner, twist_block, inner),
+    ], axis=1)
+    for array in (*blocks.values(), edge_index, vertex_index):
+        array.flags.writeable = False  # shared by every layout of this shape
+    return _LayoutStructure(blocks, size, edge_index, vertex_index)
+
+
+def _slot_map(index: np.ndarray, constants: list, coefficients: list) -> SlotMap:
+    """The SlotMap of one stencil kind: slot s of a stencil is coefficients[s] * p[index] where
+    index >= 0, else constants[s] (a scalar or one value per stencil)."""
+    linked = index >= 0
+    constant = np.stack([np.broadcast_to(np.asarray(value, dtype=float), index.shape[:1]) for value in constants],
+                        axis=1)
+    return SlotMap(index, np.where(linked, np.asarray(coefficients, dtype=float), 0.0), np.where(linked, 0.0, constant))
+
+
 class ParameterLayout:
     """Which parameters are optimized, where they sit in p, their p0, box and weights."""
 
@@ -164,41 +243,14 @@ class ParameterLayout:
             raise ValueError(f"stiffness must be one of {STIFFNESS_MODES}, got {stiffness!r}")
         self.stiffness, self.couple_twist = stiffness, couple_twist
         n_edges, n_inner = n_vertices - 1, n_vertices - 2
-        active = [b for b in BLOCKS if b in optimize and
-                  not (b in STIFFNESS_BLOCKS and stiffness != "element") and
-                  not (b == "twist_stiffness" and couple_twist)]
+        active = tuple(b for b in BLOCKS if b in optimize and
+                       not (b in STIFFNESS_BLOCKS and stiffness != "element") and
+                       not (b == "twist_stiffness" and couple_twist))
         strand_level = stiffness == "strand" and any(b in optimize for b in STIFFNESS_BLOCKS)
-
-        # ---- positions of each block's entries in p, along the strand ----
-        # order: [edge 0][vertex 1][edge 1] ... [vertex n-2][edge n-2], blocks in BLOCKS order
-        edge_widths = {b: w for b, w in _EDGE_BLOCKS.items() if b in active}
-        vertex_widths = {b: w for b, w in _VERTEX_BLOCKS.items() if b in active}
-        stride = sum(edge_widths.values()) + sum(vertex_widths.values())
-        self.blocks = {}
-        for widths, count, start in ((edge_widths, n_edges, 0),
-                                     (vertex_widths, n_inner, sum(edge_widths.values()))):
-            for b, w in widths.items():
-                first = start + stride * np.arange(count)
-                self.blocks[b] = (first[:, None] + np.arange(w)).ravel()
-                start += w
-        self.blocks = {b: self.blocks[b] for b in BLOCKS if b in self.blocks}
-        self.size = stride * n_edges - sum(vertex_widths.values()) * (n_edges - n_inner)
         self.contacts = np.asarray(contacts, dtype=int)
-        if self.contacts.size:
-            # contact of vertex i right after vertex i's entries (after edge i - 1's if it has none;
-            # the tip's after the last edge): shift every later entry by the contacts before it
-            vertex_width = sum(vertex_widths.values())
-            after = np.where(self.contacts <= n_inner,
-                             sum(edge_widths.values()) + stride * (self.contacts - 1) + vertex_width, self.size)
-            width = int(contact_width)
-            for b, ix in self.blocks.items():
-                self.blocks[b] = ix + width * np.searchsorted(after, ix, side="right")
-            self.blocks[CONTACT_BLOCK] = ((after + width * np.arange(self.contacts.size))[:, None]
-                                          + np.arange(width)).ravel()
-            self.size += width * self.contacts.size
-        self.size += int(strand_level)
-        if strand_level:
-            self.blocks[STRAND_BLOCK] = np.array([self.size - 1])
+        structure = _layout_structure(n_vertices, active, strand_level, couple_twist, self.contacts.tobytes(),
+                                      int(contact_width))
+        self.blocks, self.size = dict(structure.blocks), structure.size
 
         # ---- p0, default box, weights ----
         lengths = np.asarray(edge_lengths, dtype=float)
@@ -243,37 +295,11 @@ class ParameterLayout:
         self.validate()
 
         # ---- physical slot maps (layouts of energies.EDGE_PHYSICAL / VERTEX_PHYSICAL) ----
-        def slot(n, const, block=None, element_index=None, coefficient=1.0):
-            index = np.full(n, -1)
-            if block in self.blocks:
-                index = self.blocks[block][element_index]
-            elif strand_level and block in STIFFNESS_BLOCKS:
-                index = np.full(n, self.size - 1)
-            coef = np.where(index >= 0, coefficient, 0.0)
-            constant = np.where(index >= 0, 0.0, const)
-            return index, coef, constant
-
         E, G = youngs_modulus, shear_modulus
-        edges_all, inner = np.arange(n_edges), np.arange(n_inner)
         kappa0 = np.asarray(rest_curvature0, dtype=float).reshape(n_inner, 2)
-        curvature_rows = lambda k: 2 * inner + k if "rest_curvature" in self.blocks else None  # noqa: E731
-        twist_block = "twist_stiffness" if "twist_stiffness" in self.blocks else (
-            "bend_stiffness" if couple_twist else "twist_stiffness")
-        edge_slots = [
-            slot(n_edges, 0.0, "rest_length", edges_all),
-            slot(n_edges, E, "stretch_stiffness", edges_all, E),
-        ]
-        vertex_slots = [
-            slot(n_inner, 0.0, "rest_length", inner),
-            slot(n_inner, 0.0, "rest_length", inner + 1),
-            slot(n_inner, kappa0[:, 0], "rest_curvature", curvature_rows(0)),
-            slot(n_inner, kappa0[:, 1], "rest_curvature", curvature_rows(1)),
-            slot(n_inner, rest_twist0, "rest_twist", inner),
-            slot(n_inner, E, "bend_stiffness", inner, E),
-            slot(n_inner, G, twist_block, inner, G),
-        ]
-        self.edge_map = SlotMap(*(np.stack(parts, axis=1) for parts in zip(*edge_slots)))
-        self.vertex_map = SlotMap(*(np.stack(parts, axis=1) for parts in zip(*vertex_slots)))
+        self.edge_map = _slot_map(structure.edge_index, [0.0, E], [1.0, E])
+        self.vertex_map = _slot_map(structure.vertex_index, [0.0, 0.0, kappa0[:, 0], kappa0[:, 1], rest_twist0, E, G],
+                                    [1.0, 1.0, 1.0, 1.0, 1.0, E, G])
 
     def _apply_user(self, bounds: dict, weights) -> None:
         for name, value in (bounds or {}).items():
