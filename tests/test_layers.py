@@ -97,9 +97,13 @@ def test_default_groom_results_unchanged_by_the_layout():
     result (first stored before the shared layer moved out of solvers/, bit-identical after the move;
     stored anew when the problem itself changed: the regularizer's length shares and the stability
     floors; and when asc's method did: the crawl test of its inner solves, Newton-SQP after one
-    crawling round, stiffness floors checked by restiffening). 1e-12 leaves room for another CPU's rounding, far below any change of method."""
+    crawling round, stiffness floors checked by restiffening). The tolerance is 1e-6 of the largest
+    entry: p is reproducible only to the rounding of what leads to it, and another CPU's BLAS kernels
+    (numpy's stacked products, numba's dot products) round differently: the strands' points moved
+    by 4e-16 (relative) moved p by up to 2.6e-8 of the largest entry in three trials (a 1e-12 guard
+    failed on such a change). A change of method moves p by the solver's tolerance, 1e-5."""
     stored = np.load(ROOT / "tests" / "data" / "groom_20_50_seed0_asc.npz")
     results = sagfree.optimize(sagfree.scenes.groom(20, 50, seed=0), solver="asc", jobs=1)
     assert [r.status for r in results] == list(stored["status"])
     p = np.stack([r.p for r in results])
-    assert np.allclose(p, stored["p"], rtol=1e-12, atol=1e-12 * np.abs(stored["p"]).max())
+    assert np.allclose(p, stored["p"], rtol=0.0, atol=1e-6 * np.abs(stored["p"]).max())
