@@ -210,6 +210,10 @@ def batch_functions(functions: list[ca.Function]) -> list["BatchFunction"]:
     return [BatchFunction(f, d) for f, d in zip(functions, drivers)]
 
 
+#: The C type of a batch driver (``_DRIVER``): void (long long count, const double** inputs, double** outputs).
+DRIVER_POINTER = ctypes.CFUNCTYPE(None, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_void_p)
+
+
 class BatchFunction:
     """Evaluate ``function`` over N stencils through its compiled ``driver``, or CasADi's map."""
 
@@ -225,6 +229,14 @@ class BatchFunction:
     @property
     def compiled(self) -> bool:
         return self._driver is not None
+
+    @functools.cached_property
+    def pointer(self):
+        """The compiled batch driver as a ctypes function pointer that numba code can call with the
+        addresses of the input and output arrays' data (at_rest): driver(count, inputs, outputs)."""
+        if self._driver is None:
+            raise RuntimeError(f"{self.function.name()} is not compiled")
+        return DRIVER_POINTER(ctypes.cast(self._driver, ctypes.c_void_p).value)
 
     def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:
         count = len(inputs[0])

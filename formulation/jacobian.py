@@ -80,8 +80,14 @@ class JacobianPattern:
 
     def values(self, *stencil_jacobians: np.ndarray) -> np.ndarray:
         """CSC values of dc/dp from the stencil kinds' parameter Jacobians (in constructor order)."""
-        entries = np.concatenate([j.ravel() for j in stencil_jacobians])
-        return _scatter(self._target, self._source, self._scale, entries, self.indices.size)
+        target, source, scale, size = self.scatter_plan
+        return scatter_values(target, source, scale, np.concatenate([j.ravel() for j in stencil_jacobians]), size)
+
+    @property
+    def scatter_plan(self) -> tuple:
+        """(target, source, scale, size) of ``scatter_values`` on the stencils' raveled Jacobians
+        (also called from at_rest's compiled evaluation)."""
+        return self._target, self._source, self._scale, self.indices.size
 
 
 class StrandJacobian:
@@ -126,7 +132,8 @@ class _Transposed:
 
 
 @numba.njit(cache=True)
-def _scatter(target, source, scale, entries, size):  # pragma: no cover - compiled
+def scatter_values(target, source, scale, entries, size):  # pragma: no cover - compiled
+    """The pattern's values: value target[k] adds scale[k] * entries[source[k]] (JacobianPattern.scatter_plan)."""
     out = np.zeros(size)
     for k in range(target.size):
         out[target[k]] += scale[k] * entries[source[k]]

@@ -135,12 +135,18 @@ class SlotMap:
         self._source = self.index.ravel()[self._linked]
         self._factor = self.coefficient.ravel()[self._linked]
 
+    @property
+    def arrays(self) -> tuple:
+        """(constant, linked, factor, source): ``evaluate_slots``'s arguments before p (compiled
+        callers, formulation.at_rest)."""
+        return self.constant, self._linked, self._factor, self._source
+
     def evaluate(self, p: np.ndarray) -> np.ndarray:
-        return _evaluate_slots(self.constant, self._linked, self._factor, self._source, p)
+        return evaluate_slots(*self.arrays, p)
 
 
 @numba.njit(cache=True)
-def _evaluate_slots(constant, linked, factor, source, p):  # pragma: no cover - compiled
+def evaluate_slots(constant, linked, factor, source, p):  # pragma: no cover - compiled
     """SlotMap.evaluate in one compiled call (it runs for every residual and Jacobian)."""
     out = constant.copy()
     flat = out.ravel()

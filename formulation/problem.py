@@ -20,7 +20,7 @@ from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, p
 from sagfree.linalg.eigen import smallest_eigenpair
 from sagfree.linalg.timing import MODEL, timed
 
-from . import dofs
+from . import at_rest, dofs
 from .curvature import check_variant
 from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
@@ -327,8 +327,14 @@ class Problem:
         return self.external_forces - self.elastic_gradient(p, q, frames)
 
     def _forces_at_rest(self, p) -> np.ndarray:
-        """``forces(p)`` at q*, uncached."""
-        f = self.external_forces - self.elastic_gradient(p)
+        """``forces(p)`` at q*, uncached (one compiled call, at_rest, where the stencils are compiled)."""
+        compiled = self._compiled_at_rest
+        if compiled is None:
+            f = self.external_forces - self.elastic_gradient(p)
+        else:
+            inputs, (gradients, _), _ = compiled
+            f = at_rest.forces(self.check_parameters(p), *inputs, self.edge_dofs, self.vertex_dofs,
+                               self.external_forces, *gradients)
         if self.contacts.count:
             f[dofs.position_index(self.n_vertices)] += self.contact_forces(p)
         return f
@@ -365,8 +371,29 @@ class Problem:
             return self._by_p("jacobian", p, lambda: self._strand_jacobian(p, q, frames), AT_REST_MEMO)
         return self._strand_jacobian(p, q, frames)
 
+    @functools.cached_property
+    def _compiled_at_rest(self):
+        """(inputs, (gradient drivers, parameter Jacobian drivers), contact blocks) of the at_rest
+        kernels, or None where a stencil function is not compiled (CasADi's virtual machine)."""
+        functions = (self.edge_functions.gradient, self.vertex_fixed_functions.gradient,
+                     self.edge_functions.parameter_jacobian, self.vertex_fixed_functions.parameter_jacobian)
+        if not all(function.compiled for function in functions):
+            return None
+        slots = [tuple(np.ascontiguousarray(a) for a in m.arrays) for m in (self.layout.edge_map, self.layout.vertex_map)]
+        kinematics, transposed = self.kinematics_at_rest
+        # C order throughout: the drivers read the arrays' data as contiguous blocks
+        inputs = (*slots, *(np.ascontiguousarray(a) for a in (self._at_rest[0], self._edge_geometry, kinematics,
+                                                               self._vertex_geometry, transposed.transpose(0, 2, 1))))
+        drivers = tuple(function.pointer for function in functions)
+        return inputs, (drivers[:2], drivers[2:]), np.ascontiguousarray(self._contact_jacobian).ravel()
+
     def _strand_jacobian(self, p, q, frames) -> StrandJacobian:
         """``strand_jacobian``, uncached."""
+        compiled = self._compiled_at_rest if q is None and frames is None else None
+        if compiled is not None:
+            inputs, (_, jacobians), contact = compiled
+            return StrandJacobian(self._jacobian_pattern, at_rest.jacobian_values(
+                self.check_parameters(p), *inputs, contact, *jacobians, *self._jacobian_pattern.scatter_plan))
         edge, vertex = self.stencil_inputs(p, q, frames)
         if q is None and frames is None:
             kinematics, transposed = self.kinematics_at_rest

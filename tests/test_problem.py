@@ -74,6 +74,16 @@ def test_fixed_shape_chain_rule_matches_the_full_stencils(variant, rng):
         (by_kinematics,) = pb.vertex_fixed_functions.parameter_jacobian(kinematics, *vertex[2:])
         assert np.allclose(transposed @ by_kinematics, full_jacobian, rtol=1e-12,
                            atol=1e-12 * np.abs(full_jacobian).max())
+        # what the solvers evaluate at q*: one compiled call each (formulation.at_rest), and the
+        # numpy chain rule it replaces where the stencils are not compiled
+        numpy_path = sagfree.Problem(strand, curvature=variant)
+        numpy_path.__dict__["_compiled_at_rest"] = None
+        for at_rest in (pb, numpy_path):
+            forces, full_forces = at_rest.forces(p), at_rest.forces(p, pb.q_star.copy(), pb.frames)
+            assert np.allclose(forces, full_forces, rtol=1e-12, atol=1e-12 * np.abs(full_forces).max())
+            values = at_rest.strand_jacobian(p).data
+            full_values = at_rest.strand_jacobian(p, pb.q_star.copy(), pb.frames).data
+            assert np.allclose(values, full_values, rtol=1e-12, atol=1e-12 * np.abs(full_values).max())
 
 
 def test_gradient_check_detects_a_wrong_gradient(rng):

@@ -1,0 +1,111 @@
+"""The forces and dc/dp at q* in one compiled call each (Problem.forces and Problem.strand_jacobian at
+rest, which the solvers evaluate at every trial point).
+
+At q* the vertex stencils see the DOFs through their kinematics k, fixed there
+(stencils.FixedShapeFunctions), so
+
+    f = f_ext - sum_e g_e - sum_v (dk/dy)_v^T dE_v/dk,          (scattered onto the stencils' DOFs)
+    dc/dp = the edge Jacobians d g_e / d(physical) and (dk/dy)^T d(dE/dk)/d(physical), scaled and summed
+            into the values of the strand's JacobianPattern,
+
+with the physical parameters from p through the slot maps (parameters.SlotMap). In numpy that is
+eight calls of a few microseconds each (two slot maps, two stencil batches, a stacked product, the
+scatter): 33 us for the forces of a 100-vertex strand and 52 us for dc/dp, against 8 and 27 us
+here. numba calls the CasADi batch drivers through their function pointers
+(compiled.BatchFunction.pointer). The sums run in the order of the numpy form (np.bincount, edges
+then vertices); only the chain rule's products are summed in another order than BLAS's, a rounding
+difference.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .jacobian import scatter_values
+from .parameters import evaluate_slots
+
+
+@numba.njit(cache=True)
+def _call(driver, count, first, second, third, out):  # pragma: no cover - compiled
+    """One batch driver (compiled._DRIVER) on ``count`` stencils: three inputs, one output."""
+    inputs, outputs = np.empty(3, dtype=np.intp), np.empty(1, dtype=np.intp)
+    inputs[0], inputs[1], inputs[2] = first.ctypes.data, second.ctypes.data, third.ctypes.data
+    outputs[0] = out.ctypes.data
+    driver(count, inputs.ctypes.data, outputs.ctypes.data)
+
+
+@numba.njit(cache=True)
+def forces(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry, kinematics_jacobian,
+           edge_dofs, vertex_dofs, external, edge_gradient, vertex_gradient):  # pragma: no cover - compiled
+    """f(q*, p) without the bodies' supports. edge_slots / vertex_slots: a SlotMap's (constant,
+    linked, factor, source); kinematics_jacobian: dk/dy per vertex stencil (S, 5, 11); edge_gradient
+    / vertex_gradient: the drivers of the edge gradient and of the vertex kinematics gradient."""
+    edge_physical = evaluate_slots(edge_slots[0], edge_slots[1], edge_slots[2], edge_slots[3], p)
+    vertex_physical = evaluate_slots(vertex_slots[0], vertex_slots[1], vertex_slots[2], vertex_slots[3], p)
+    edges, edge_width = edge_q.shape
+    vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
+    by_edge = np.empty((edges, edge_width))
+    _call(edge_gradient, edges, edge_q, edge_geometry, edge_physical, by_edge)
+    by_kinematics = np.empty((vertices, kinematics_size))
+    _call(vertex_gradient, vertices, kinematics, vertex_geometry, vertex_physical, by_kinematics)
+    size = external.size
+    edge_sum, vertex_sum = np.zeros(size), np.zeros(size)
+    for s in range(edges):
+        for i in range(edge_width):
+            edge_sum[edge_dofs[s, i]] += by_edge[s, i]
+    column = np.empty(vertex_width)
+    for s in range(vertices):  # (dk/dy)^T dE/dk, summed over m in order
+        column[:] = 0.0
+        for m in range(kinematics_size):
+            factor = by_kinematics[s, m]
+            for i in range(vertex_width):
+                column[i] += kinematics_jacobian[s, m, i] * factor
+        for i in range(vertex_width):
+            vertex_sum[vertex_dofs[s, i]] += column[i]
+    out = np.empty(size)
+    for j in range(size):
+        out[j] = external[j] - (edge_sum[j] + vertex_sum[j])
+    return out
+
+
+@numba.njit(cache=True)
+def jacobian_values(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry,
+                    kinematics_jacobian, contact_jacobian, edge_jacobian, vertex_jacobian, target, source, scale,
+                    size):  # pragma: no cover - compiled
+    """The CSC values of dc/dp at q* on the strand's JacobianPattern (target, source, scale, size:
+    its scatter; contact_jacobian: the supports' constant blocks, flattened); the other arguments as
+    for ``forces``, with edge_jacobian / vertex_jacobian the drivers of the edge parameter Jacobian
+    and of the vertex kinematics one."""
+    edge_physical = evaluate_slots(edge_slots[0], edge_slots[1], edge_slots[2], edge_slots[3], p)
+    vertex_physical = evaluate_slots(vertex_slots[0], vertex_slots[1], vertex_slots[2], vertex_slots[3], p)
+    edges, edge_width = edge_q.shape
+    edge_columns = edge_physical.shape[1]
+    vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
+    vertex_columns = vertex_physical.shape[1]
+    by_edge = np.empty((edges, edge_width * edge_columns))  # CasADi's column-major blocks
+    _call(edge_jacobian, edges, edge_q, edge_geometry, edge_physical, by_edge)
+    by_kinematics = np.empty((vertices, kinematics_size * vertex_columns))
+    _call(vertex_jacobian, vertices, kinematics, vertex_geometry, vertex_physical, by_kinematics)
+    entries = np.empty(edges * edge_width * edge_columns + vertices * vertex_width * vertex_columns
+                       + contact_jacobian.size)
+    k = 0
+    for s in range(edges):  # the stencil blocks row by row, as JacobianPattern.values ravels them
+        for i in range(edge_width):
+            for c in range(edge_columns):
+                entries[k] = by_edge[s, c * edge_width + i]
+                k += 1
+    column = np.empty(vertex_width)
+    for s in range(vertices):
+        for c in range(vertex_columns):  # column c of (dk/dy)^T d(dE/dk)/d(physical), summed over m in order
+            column[:] = 0.0
+            for m in range(kinematics_size):
+                factor = by_kinematics[s, c * kinematics_size + m]
+                for i in range(vertex_width):
+                    column[i] += kinematics_jacobian[s, m, i] * factor
+            for i in range(vertex_width):
+                entries[k + i * vertex_columns + c] = column[i]
+        k += vertex_width * vertex_columns
+    for value in contact_jacobian:
+        entries[k] = value
+        k += 1
+    return scatter_values(target, source, scale, entries, size)
