@@ -127,7 +127,9 @@ def test_margin_bound_gives_the_exact_verdict(groom):
         decided_by_bound += "stability_margin" not in problem.__dict__
         assert verdict == (problem.stability(p) >= problem.stability_margin)
         mode = problem.stability(p, vector=True)[1]
-        quotient = mode @ (problem.hessian(problem.p0) @ mode) / (problem.dof_masses @ mode**2)
+        form = mode @ (problem.hessian(problem.p0) @ mode)
+        assert problem._unstressed_form(mode) == pytest.approx(form, rel=1e-6)  # summed per stencil
+        quotient = form / (problem.dof_masses @ mode**2)
         assert quotient >= problem.stability(problem.p0) * (1 - 1e-9)  # the bound it rests on
     assert decided_by_bound == 3  # 1 and 11 are saddles: the margin was computed for them
 

