@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import functools
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
@@ -429,6 +430,15 @@ class Problem:
         (stencils.ParameterHessianFunctions), mapped to p through the slot maps (physical = constant +
         coefficient * p[index]): each element's block couples its stiffness and rest-shape entries.
         """
+        rows, cols, values = self.constraint_hessian_entries(p, lam)
+        size = self.n_parameters
+        return sp.csr_matrix((values, (rows, cols)), shape=(size, size))
+
+    @timed(MODEL)
+    def constraint_hessian_entries(self, p, lam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``constraint_hessian`` as (rows, columns, values) triplets, one per stencil slot pair,
+        duplicates not summed (linalg.saddle.SaddleFactor adds them into its band: a 2000-vertex
+        strand's sparse matrix and its conversions cost 3 ms per Newton-SQP step)."""
         p = self.check_parameters(p)
         lam = np.asarray(lam, dtype=float).reshape(-1)
         if lam.shape != (self.free_index.size,):
@@ -441,16 +451,9 @@ class Problem:
         (edge_blocks,) = functions.edge(*edge, mu[self.edge_dofs])
         (vertex_blocks,) = functions.vertex(kinematics, *vertex[2:],
                                             np.einsum("sij,si->sj", transposed, mu[self.vertex_dofs]))
-        rows, cols, values = [], [], []
-        for blocks, slots in ((edge_blocks, self.layout.edge_map), (vertex_blocks, self.layout.vertex_map)):
-            index, coefficient = slots.index, slots.coefficient
-            linked = (index[:, :, None] >= 0) & (index[:, None, :] >= 0)
-            rows.append(np.broadcast_to(index[:, :, None], blocks.shape)[linked])
-            cols.append(np.broadcast_to(index[:, None, :], blocks.shape)[linked])
-            values.append(-(coefficient[:, :, None] * coefficient[:, None, :] * blocks)[linked])
-        size = self.n_parameters
-        return sp.csr_matrix((np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(size, size))
+        edge_map, vertex_map = self.layout.edge_map, self.layout.vertex_map
+        return _slot_pair_entries(edge_map.index, edge_map.coefficient, np.ascontiguousarray(edge_blocks),
+                                  vertex_map.index, vertex_map.coefficient, np.ascontiguousarray(vertex_blocks))
 
     def _hessian_blocks(self, p, q, frames):
         """[(stencil DOF indices, stencil Hessians d2E/dy2)] of the edge and vertex stencils. At q* and
@@ -678,6 +681,35 @@ class Problem:
         if STRAND_BLOCK in blocks:
             gradient[blocks[STRAND_BLOCK]] = sum(float(values.sum()) for values in forms.values())
         return gradient
+
+
+@numba.njit(cache=True)
+def _slot_pair_entries(edge_index, edge_coefficient, edge_blocks, vertex_index, vertex_coefficient,
+                       vertex_blocks):  # pragma: no cover - compiled
+    """(rows, columns, values) of -c_a c_b B[s, a, b] for every stencil s and pair of linked slots
+    (a, b) (index >= 0), the edge stencils' then the vertex stencils' (Problem.constraint_hessian_entries)."""
+    count = 0
+    for index in (edge_index, vertex_index):
+        for s in range(index.shape[0]):
+            linked = 0
+            for a in range(index.shape[1]):
+                linked += index[s, a] >= 0
+            count += linked * linked
+    rows, cols, values = np.empty(count, np.int64), np.empty(count, np.int64), np.empty(count)
+    k = 0
+    for index, coefficient, blocks in ((edge_index, edge_coefficient, edge_blocks),
+                                       (vertex_index, vertex_coefficient, vertex_blocks)):
+        for s in range(index.shape[0]):
+            for a in range(index.shape[1]):
+                if index[s, a] < 0:
+                    continue
+                for b in range(index.shape[1]):
+                    if index[s, b] < 0:
+                        continue
+                    rows[k], cols[k] = index[s, a], index[s, b]
+                    values[k] = -(coefficient[s, a] * coefficient[s, b] * blocks[s, a, b])
+                    k += 1
+    return rows, cols, values
 
 
 def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:

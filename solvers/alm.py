@@ -42,7 +42,7 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     clamped at both ends 3e-5 above the optimum in R). So after NEWTON_AFTER outer iterations in a
     row whose inner solves stepped and ended at a feasible p whose KKT distance is still above
     kkt_tol, NEWTON_STEPS steps of SQP with the exact Hessian of the Lagrangian
-    W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian, least-squares multipliers, one band
+    W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian_entries, least-squares multipliers, one band
     LU each, a second-order correction back to c = 0) are tried (counted as ``newton_sqp``); their
     point is taken if it passes the convergence test without raising R (_newton_sqp). The same is
     tried where the constraint stalls near feasibility (|c|_inf <= NEWTON_NEAR) and the SQP step
@@ -376,7 +376,7 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
         lam = estimate if np.all(np.isfinite(estimate)) else lam
         if lam is None:
             return None
-        factor = SaddleFactor(J, model.w, free, problem.constraint_hessian(x, lam))
+        factor = SaddleFactor(J, model.w, free, problem.constraint_hessian_entries(x, lam))
         if factor.singular:
             return None
         step, _ = factor.solve(gradient, c)

@@ -94,6 +94,10 @@ def test_saddle_with_curvature_matches_a_dense_solve(stiffness, rng, capfd):
     x, b = np.concatenate([d[F], multipliers]), -np.concatenate([g[F], c])
     assert np.abs(K @ x - b).max() <= 1e-11 * (np.abs(K) @ np.abs(x) + np.abs(b)).max()  # backward stable
     assert np.allclose(x, reference, rtol=1e-6, atol=1e-9 * np.abs(reference).max())
+    # the curvature as the triplets Newton-SQP passes (duplicates summed by the factorization)
+    d_entries, multipliers_entries = SaddleFactor(J, w, free, problem.constraint_hessian_entries(p, lam)).solve(g, c)
+    assert np.allclose(np.concatenate([d_entries[F], multipliers_entries]), x, rtol=1e-10,
+                       atol=1e-12 * np.abs(x).max())
     capfd.readouterr()
     singular = sp.csc_matrix(J.tocsc().toarray() * (np.arange(c.size) != 5)[:, None])  # row 5 empty
     assert SaddleFactor(singular, w, free, curvature).singular

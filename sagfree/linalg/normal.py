@@ -28,9 +28,10 @@ class NormalFactor:
         rows = J.shape[0]
         dense = columns & dense_columns(indptr, rows)
         sparse_columns = columns & ~dense
-        band = np.zeros((_column_span(indptr, indices, sparse_columns) + 1, rows))
-        band[0] = shift
-        _accumulate_row_gram(indptr, indices, data, np.asarray(d, dtype=float), sparse_columns, band)
+        columns = np.zeros((rows, _column_span(indptr, indices, sparse_columns) + 1))  # the band transposed
+        columns[:, 0] = shift
+        _accumulate_row_gram(indptr, indices, data, np.asarray(d, dtype=float), sparse_columns, columns)
+        band = np.ascontiguousarray(columns.T)
         self._cols = np.empty((rows, band.shape[0]))
         self._empty_border, self._empty_corner = np.zeros((0, rows)), np.zeros((0, 0))
         self.definite = factor_active(band, self._empty_border, self._empty_corner, np.ones(rows, dtype=np.bool_),
@@ -72,8 +73,9 @@ def _column_span(indptr, indices, include):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _accumulate_row_gram(indptr, indices, data, d, include, band):  # pragma: no cover - compiled
-    """Add d_j J[:, j] J[:, j]^T of every included column j to the lower band (rows x rows)."""
+def _accumulate_row_gram(indptr, indices, data, d, include, columns):  # pragma: no cover - compiled
+    """Add d_j J[:, j] J[:, j]^T of every included column j to the lower band (rows x rows), held
+    transposed: columns[r, k] = band[k, r] (contiguous per row, as linalg.band.gram)."""
     for j in range(indptr.size - 1):
         if not include[j]:
             continue
@@ -82,4 +84,4 @@ def _accumulate_row_gram(indptr, indices, data, d, include, band):  # pragma: no
             for b in range(indptr[j], indptr[j + 1]):
                 rb = indices[b]
                 if rb >= ra:
-                    band[rb - ra, ra] += va * data[b]
+                    columns[ra, rb - ra] += va * data[b]

@@ -21,14 +21,15 @@ from .timing import LINEAR_ALGEBRA, timed
 
 class SaddleFactor:
     """The factored saddle system [[W_F, J_F^T], [J_F, 0]] of a Jacobian J, weights w and free set F
-    (W = diag(w) + ``curvature``, a sparse symmetric matrix or None), for several right-hand sides:
+    (W = diag(w) + ``curvature``: None, a sparse symmetric matrix, or its (rows, columns, values)
+    triplets, duplicates summed), for several right-hand sides:
     ``solve(gradient, c)`` is one pair of triangular solves. ``singular`` when the system is (J_F
     rank deficient: more constraints than free directions); then ``solve`` must not be called.
 
     Factored by an LU with partial pivoting of the free variables' system, its unknowns interleaved
     along the strand (each parameter next to the rows its column touches): the order of J's pattern
     (_saddle_order, shared by the strands of a size) with the variables off F left out
-    (_kept_positions). The system is then a band (half-width 25 on a 100-vertex element strand with
+    (_reduced_saddle_band). The system is then a band (half-width 25 on a 100-vertex element strand with
     every variable free, 19 at the linear start, whose stiffness multipliers are fixed) that
     LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU; a solve (dgbtrs) costs
     about a tenth of the factorization. A column that fills most rows
@@ -95,6 +96,9 @@ def _free_system(J, indptr, indices, data, w, free, curvature) -> sp.csc_matrix:
     """[[W_FF, J_F^T], [J_F, 0]] on the free variables alone, in compressed columns (SaddleFactor's
     SuperLU path)."""
     if curvature is not None:
+        if isinstance(curvature, tuple):
+            rows, columns, values = curvature
+            curvature = sp.csr_matrix((values, (rows, columns)), shape=(J.shape[1],) * 2)
         columns = np.flatnonzero(free)
         J_free = sp.csc_matrix((data, indices, indptr), shape=J.shape)[:, columns]
         W_free = sp.csr_matrix(sp.diags(w) + curvature)[columns][:, columns]
@@ -233,12 +237,17 @@ def _reduced_half(indptr, indices, free, position, curvature_rows, curvature_col
 
 
 def _free_entries(matrix, free):
-    """(rows, columns, values) of a sparse matrix's entries between free variables (None: none)."""
+    """(rows, columns, values) of a sparse matrix's (or a triplet tuple's) entries between free
+    variables (None: none)."""
     if matrix is None:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
-    coo = sp.coo_matrix(matrix)
-    keep = free[coo.row] & free[coo.col]
-    return coo.row[keep].astype(np.int64), coo.col[keep].astype(np.int64), coo.data[keep].astype(float)
+    if isinstance(matrix, tuple):
+        rows, columns, values = (np.asarray(a) for a in matrix)
+    else:
+        coo = sp.coo_matrix(matrix)
+        rows, columns, values = coo.row, coo.col, coo.data
+    keep = free[rows] & free[columns]
+    return rows[keep].astype(np.int64), columns[keep].astype(np.int64), values[keep].astype(float)
 
 
 @numba.njit(cache=True)
