@@ -221,7 +221,7 @@ class Problem:
     def _unstressed_form(self, v) -> float:
         """v^T H(p0) v at q*, summed over the stencils without assembling H: the edge stencils'
         Hessians and the vertex stencils' (dk/dy)^T d2E/dk2 dk/dy (dE/dk = 0 at p0, as in
-        ``_hessian_blocks``), i.e. u^T d2E/dk2 u with u = dk/dy v (a third of the band's cost)."""
+        ``_hessian_blocks``), i.e. u^T d2E/dk2 u with u = dk/dy v (half the band's cost)."""
         edge, vertex = self.stencil_inputs(self.layout.p0, None, None)
         kinematics, transposed = self.kinematics_at_rest
         (by_kinematics,) = self.vertex_fixed_functions.hessian(kinematics, *vertex[2:])
@@ -688,28 +688,37 @@ def _slot_pair_entries(edge_index, edge_coefficient, edge_blocks, vertex_index, 
                        vertex_blocks):  # pragma: no cover - compiled
     """(rows, columns, values) of -c_a c_b B[s, a, b] for every stencil s and pair of linked slots
     (a, b) (index >= 0), the edge stencils' then the vertex stencils' (Problem.constraint_hessian_entries)."""
-    count = 0
-    for index in (edge_index, vertex_index):
-        for s in range(index.shape[0]):
-            linked = 0
-            for a in range(index.shape[1]):
-                linked += index[s, a] >= 0
-            count += linked * linked
+    count = _linked_pairs(edge_index) + _linked_pairs(vertex_index)
     rows, cols, values = np.empty(count, np.int64), np.empty(count, np.int64), np.empty(count)
-    k = 0
-    for index, coefficient, blocks in ((edge_index, edge_coefficient, edge_blocks),
-                                       (vertex_index, vertex_coefficient, vertex_blocks)):
-        for s in range(index.shape[0]):
-            for a in range(index.shape[1]):
-                if index[s, a] < 0:
-                    continue
-                for b in range(index.shape[1]):
-                    if index[s, b] < 0:
-                        continue
-                    rows[k], cols[k] = index[s, a], index[s, b]
-                    values[k] = -(coefficient[s, a] * coefficient[s, b] * blocks[s, a, b])
-                    k += 1
+    k = _fill_pairs(edge_index, edge_coefficient, edge_blocks, rows, cols, values, 0)
+    _fill_pairs(vertex_index, vertex_coefficient, vertex_blocks, rows, cols, values, k)
     return rows, cols, values
+
+
+@numba.njit(cache=True)
+def _linked_pairs(index):  # pragma: no cover - compiled
+    count = 0
+    for s in range(index.shape[0]):
+        linked = 0
+        for a in range(index.shape[1]):
+            linked += index[s, a] >= 0
+        count += linked * linked
+    return count
+
+
+@numba.njit(cache=True)
+def _fill_pairs(index, coefficient, blocks, rows, cols, values, k):  # pragma: no cover - compiled
+    for s in range(index.shape[0]):
+        for a in range(index.shape[1]):
+            if index[s, a] < 0:
+                continue
+            for b in range(index.shape[1]):
+                if index[s, b] < 0:
+                    continue
+                rows[k], cols[k] = index[s, a], index[s, b]
+                values[k] = -(coefficient[s, a] * coefficient[s, b] * blocks[s, a, b])
+                k += 1
+    return k
 
 
 def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
