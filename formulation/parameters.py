@@ -155,7 +155,6 @@ def evaluate_slots(constant, linked, factor, source, p):  # pragma: no cover - c
     return out
 
 
-
 @dataclass(frozen=True)
 class _LayoutStructure:
     """What a ParameterLayout's shape alone fixes: each block's entries in p (read-only arrays), the
@@ -171,7 +170,7 @@ class _LayoutStructure:
 def _layout_structure(n_vertices: int, active: tuple, strand_level: bool, couple_twist: bool, contacts: bytes,
                       contact_width: int) -> _LayoutStructure:
     """The _LayoutStructure of a layout, shared by the strands of a groom (their layouts differ only
-    in values: it was ~60% of a 100-vertex layout's construction). ``contacts``: the bytes of the
+    in values: building it was 0.1 of a 100-vertex Problem's 0.53 ms). ``contacts``: the bytes of the
     int contact vertex array."""
     n_edges, n_inner = n_vertices - 1, n_vertices - 2
     contacts = np.frombuffer(contacts, dtype=int)

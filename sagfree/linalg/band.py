@@ -143,7 +143,8 @@ def _row_span(indptr, indices, nb):  # pragma: no cover - compiled
 def _accumulate_gram(indptr, indices, data, nb, scale, columns, border, corner):  # pragma: no cover
     """Add scale J^T J, each pair of a row's entries once (the row's columns are sorted, so the
     band column comes first and border columns last); the band part into ``columns`` (the band
-    transposed: columns[j, k] = band[k, j], 2x faster than striding across the band's rows)."""
+    transposed: columns[j, k] = band[k, j]; striding across the band's rows made a 100-vertex
+    strand's Gram 93 instead of 80 us)."""
     for r in range(indptr.size - 1):
         for a in range(indptr[r], indptr[r + 1]):
             ca, va = indices[a], scale * data[a]

@@ -28,10 +28,10 @@ class NormalFactor:
         rows = J.shape[0]
         dense = columns & dense_columns(indptr, rows)
         sparse_columns = columns & ~dense
-        columns = np.zeros((rows, _column_span(indptr, indices, sparse_columns) + 1))  # the band transposed
-        columns[:, 0] = shift
-        _accumulate_row_gram(indptr, indices, data, np.asarray(d, dtype=float), sparse_columns, columns)
-        band = np.ascontiguousarray(columns.T)
+        transposed = np.zeros((rows, _column_span(indptr, indices, sparse_columns) + 1))  # the band transposed
+        transposed[:, 0] = shift
+        _accumulate_row_gram(indptr, indices, data, np.asarray(d, dtype=float), sparse_columns, transposed)
+        band = np.ascontiguousarray(transposed.T)
         self._cols = np.empty((rows, band.shape[0]))
         self._empty_border, self._empty_corner = np.zeros((0, rows)), np.zeros((0, 0))
         self.definite = factor_active(band, self._empty_border, self._empty_corner, np.ones(rows, dtype=np.bool_),
