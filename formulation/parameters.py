@@ -228,9 +228,11 @@ def _slot_map(index: np.ndarray, constants: list, coefficients: list) -> SlotMap
     """The SlotMap of one stencil kind: slot s of a stencil is coefficients[s] * p[index] where
     index >= 0, else constants[s] (a scalar or one value per stencil)."""
     linked = index >= 0
-    constant = np.stack([np.broadcast_to(np.asarray(value, dtype=float), index.shape[:1]) for value in constants],
-                        axis=1)
-    return SlotMap(index, np.where(linked, np.asarray(coefficients, dtype=float), 0.0), np.where(linked, 0.0, constant))
+    constant = np.empty(index.shape)
+    for slot, value in enumerate(constants):
+        constant[:, slot] = value
+    constant[linked] = 0.0
+    return SlotMap(index, np.where(linked, np.asarray(coefficients, dtype=float), 0.0), constant)
 
 
 class ParameterLayout:
