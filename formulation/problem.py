@@ -220,17 +220,29 @@ class Problem:
         return value >= self.stability_margin
 
     def _unstressed_form(self, v) -> float:
-        """v^T H(p0) v at q*, summed over the stencils without assembling H: the edge stencils'
-        Hessians and the vertex stencils' (dk/dy)^T d2E/dk2 dk/dy (dE/dk = 0 at p0, as in
-        ``_hessian_blocks``), i.e. u^T d2E/dk2 u with u = dk/dy v (half the band's cost)."""
+        """v^T H(p0) v at q*, summed over the stencils without assembling H (half the band's cost;
+        dE/dk = 0 at p0, so ``_unstressed_vertex_forms`` applies)."""
         edge, vertex = self.stencil_inputs(self.layout.p0, None, None)
-        kinematics, transposed = self.kinematics_at_rest
-        (by_kinematics,) = self.vertex_fixed_functions.hessian(kinematics, *vertex[2:])
-        moved = np.einsum("sij,si->sj", transposed, v[self.vertex_dofs])
-        (edge_hessians,) = self.edge_functions.hessian(*edge)
+        return float(self._edge_forms(v, edge[2]).sum()
+                     + self._unstressed_vertex_forms(self._kinematics_motion(v), vertex[3]).sum())
+
+    def _edge_forms(self, v, edge_physical) -> np.ndarray:
+        """v_s^T H_s v_s per edge stencil at q* (H_s its d2E/dy2 with the physical parameters given)."""
+        (hessians,) = self.edge_functions.hessian(self._at_rest[0], self._edge_geometry, edge_physical)
         local = v[self.edge_dofs]
-        return float(np.einsum("si,sij,sj->", moved, by_kinematics, moved)
-                     + np.einsum("si,sij,sj->", local, edge_hessians, local))
+        return np.einsum("si,sij,sj->s", local, hessians, local)
+
+    def _kinematics_motion(self, v) -> np.ndarray:
+        """u_s = dk/dy v_s per vertex stencil, the kinematics at q* (``kinematics_at_rest``)."""
+        return np.einsum("sij,si->sj", self.kinematics_at_rest[1], v[self.vertex_dofs])
+
+    def _unstressed_vertex_forms(self, motion, vertex_physical) -> np.ndarray:
+        """v_s^T H_s v_s per vertex stencil at q* where its dE/dk = 0 (an unstressed rest shape):
+        H_s = (dk/dy)^T d2E/dk2 dk/dy, so the form is u^T d2E/dk2 u with u = ``motion`` (no second
+        derivatives of the frames and transports, as in ``_hessian_blocks`` at p0)."""
+        (hessians,) = self.vertex_fixed_functions.hessian(self.kinematics_at_rest[0], self._vertex_geometry,
+                                                          vertex_physical)
+        return np.einsum("si,sij,sj->s", motion, hessians, motion)
 
     # ---- parameters ----
     @property
@@ -649,29 +661,24 @@ class Problem:
         for v^T M v = 1 (first-order perturbation of a simple eigenvalue), and lambda is concave in
         the multipliers along such moves.
 
-        A vertex stencil's G_j comes by the chain rule, (dk/dy)^T d2E/dk2 dk/dy with the kinematics
-        k at q* (``kinematics_at_rest``), exact because dE/dk = 0 at the unstressed rest shape (as in
-        ``_hessian_blocks`` at p0): v^T G_j v = u^T d2E/dk2 u with u = dk/dy v, without the second
-        derivatives of the frames and transports (two 0.23 ms Hessians of a 100-vertex strand).
+        A vertex stencil's G_j comes by the chain rule (``_unstressed_vertex_forms``: dE/dk = 0 at
+        the unstressed rest shape), without the second derivatives of the frames and transports (two
+        0.23 ms Hessians of a 100-vertex strand).
         """
         p = self.check_parameters(p)
-        edge, vertex = self.stencil_inputs(p, None, None)
         strand = self.strand
-        (_, _, geometry, physical), (edge_q, edge_geometry, _) = vertex, edge
+        geometry, physical = self._vertex_geometry, self.layout.vertex_map.evaluate(p)
         unstressed = physical.copy()
         unstressed[:, 2:4] = geometry[:, 4:6]  # kbar = kappa* (the 4d map adds the rotated pair)
         unstressed[:, 4] = geometry[:, 3]      # mbar = m*
-        kinematics, transposed = self.kinematics_at_rest
-        moved = np.einsum("sij,si->sj", transposed, mode[self.vertex_dofs])  # u = dk/dy v per stencil
+        motion = self._kinematics_motion(mode)
         forms = {}
         for name, moduli in (("bend", (strand.youngs_modulus, 0.0)), ("twist", (0.0, strand.shear_modulus))):
             unstressed[:, 5:7] = moduli
-            (hessians,) = self.vertex_fixed_functions.hessian(kinematics, geometry, unstressed)
-            forms[name] = np.einsum("si,sij,sj->s", moved, hessians, moved)
-        edge_unstressed = np.column_stack([np.zeros(len(edge_q)), np.full(len(edge_q), strand.youngs_modulus)])
-        (hessians,) = self.edge_functions.hessian(edge_q, edge_geometry, edge_unstressed)
-        local = mode[self.edge_dofs]
-        forms["stretch"] = np.einsum("si,sij,sj->s", local, hessians, local)
+            forms[name] = self._unstressed_vertex_forms(motion, unstressed)
+        edges = len(self.edge_dofs)
+        forms["stretch"] = self._edge_forms(mode, np.column_stack([np.zeros(edges),
+                                                                   np.full(edges, strand.youngs_modulus)]))
         gradient = np.zeros(self.n_parameters)
         blocks = self.layout.blocks
         per_block = {"stretch_stiffness": forms["stretch"], "twist_stiffness": forms["twist"],
