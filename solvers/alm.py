@@ -88,7 +88,8 @@ import time
 
 import numpy as np
 
-from sagfree.contract.optimality import KKT_TOL, TOL, gradient_scale, kkt_optimality, scaled_projected_gradient
+from sagfree.contract.optimality import (KKT_TOL, TOL, gradient_scale, kkt_optimality, scaled_projected_gradient,
+                                         working_set)
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.parameters import CONTACT_BLOCK, REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
@@ -194,6 +195,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     history = history + [float(np.abs(c).max(initial=0.0))]
     previous_violation = np.inf
     at_lower, at_upper = p <= lower, p >= upper
+    nearby = None  # the last SQP step's factorization while p is its point (kkt_optimality)
 
     def finish(status, message):
         return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
@@ -259,7 +261,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             if not accepted:
                 break  # no descent left at this accuracy: let the outer loop decide
             stalled = stalled + 1 if merit_trial > merit - rounding else 0
-            p, c = trial, c_trial
+            p, c, nearby = trial, c_trial, None
             J = problem.strand_jacobian(p)
             scale = gradient_scale(model.w, J)
             history.append(float(np.abs(c).max(initial=0.0)))
@@ -292,7 +294,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             # the scaled gradient can be small in a flat valley away from the optimum: confirm with
             # the KKT distance of contract.optimality, and tighten the inner target if it disagrees
             # where the inner loop reached it (the distance decides once the target is below rounding)
-            distance = kkt_optimality(problem, p)
+            distance = kkt_optimality(problem, p, nearby=nearby)
             converged = distance <= kkt_tol
             if not converged and (optimality <= target or stalled >= STALL):
                 counts["tightened"] += 1
@@ -304,7 +306,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             sqp = _sqp_step(problem, model, p, c, J, SQP_DECREASE * violation)
             if sqp is not None:
                 counts["sqp"] += 1
-                p, c, lam = sqp
+                p, c, lam, nearby = sqp
                 J = problem.strand_jacobian(p)
                 scale = gradient_scale(model.w, J)
                 history.append(float(np.abs(c).max(initial=0.0)))
@@ -331,7 +333,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                 verdict = _infeasibility(problem, p, c, J, lower, upper)
                 if verdict or violation > STALLED_VIOLATION:
                     # best effort: the least residual the box allows, at the largest stiffness
-                    p = least_residual(problem, [p, problem.p0], counts, qp_rtol)
+                    p, nearby = least_residual(problem, [p, problem.p0], counts, qp_rtol), None
                     c, J = problem.residual(p), problem.strand_jacobian(p)
                     scale = gradient_scale(model.w, J)
                     history.append(float(np.abs(c).max(initial=0.0)))
@@ -422,11 +424,12 @@ def _newton_trial(problem: Problem, w, J, x, step, c, free, tol: float, halvings
 
 
 def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float):
-    """(p, c, lam) after the equality-constrained SQP step from p, or None if it leaves
-    |c|_inf > bound.
+    """(p, c, lam, factorization) after the equality-constrained SQP step from p, or None if it
+    leaves |c|_inf > bound. The factorization (at p) serves the KKT confirmation at the new p.
 
     The step d minimizes the regularizer's quadratic model on the linearized constraint over the
-    free variables F (strictly inside their boxes; linalg.saddle.SaddleFactor, one band LU):
+    free variables F (kkt_optimality's first working set: farther than 1e-6 of their box's width
+    from its bounds; linalg.saddle.SaddleFactor, one band LU):
         [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c],
     and lam, the multipliers of that step, replace the first-order update lam + mu c. solve_alm
     tries it where it would otherwise grow mu because |c|_inf stalled: near the solution the
@@ -434,10 +437,14 @@ def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float):
     at large mu crawl (hundreds of Gauss-Newton steps where this takes two SQP steps). Where the
     curvature of c (the stiffness x rest-shape products) spoils the step, a second-order correction
     follows: the least W-norm step back to c = 0 from the trial point with the same J and the same
-    factors (two triangular solves). On 2000-vertex strands the step is rejected (|d|_inf ~0.5,
-    |c|_inf ~1e5 after it, even at a sixteenth of it) and solve_alm tries Newton-SQP instead.
+    factors (two triangular solves). With the same F, the KKT confirmation at the new point refines
+    this factorization instead of factoring its own (SaddleFactor.solve_nearby: one or two
+    corrections where a band LU costs ~0.2 ms; the variables strictly inside their boxes differ
+    from its set on nearly every groom strand, by stiffness multipliers a hair above 1). On
+    2000-vertex strands the step is rejected (|d|_inf ~0.5, |c|_inf ~1e5 after it, even at a
+    sixteenth of it) and solve_alm tries Newton-SQP instead.
     """
-    free = (p > problem.layout.lower) & (p < problem.layout.upper)
+    free = working_set(p, problem.layout.lower, problem.layout.upper)
     factor = SaddleFactor(J, model.w, free)
     if factor.singular:
         return None
@@ -451,7 +458,7 @@ def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float):
         c_trial = problem.residual(trial)
         if not np.abs(c_trial).max(initial=0.0) <= bound:  # also rejects NaN
             return None
-    return trial, c_trial, lam
+    return trial, c_trial, lam, factor
 
 
 def _on_previous_bounds(at_lower, at_upper, d_lower, d_upper) -> np.ndarray:

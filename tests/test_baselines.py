@@ -134,6 +134,37 @@ def test_symbolic_nlp_is_the_problem_constraint():
     assert SymbolicNLP.for_problem(other) is nlp
 
 
+def test_kkt_measure_from_a_nearby_factorization_is_the_fresh_one():
+    """kkt_optimality with ``nearby`` (the factorization of asc's last SQP step, refined:
+    linalg.saddle.SaddleFactor.solve_nearby) gives the distance of a fresh factorization to its
+    accuracy, and refuses a factorization that does not fit: another free set, or one so far from p
+    that the refinement does not converge (then it factors afresh, with the same answer)."""
+    import sagfree.solvers.alm as alm
+    from sagfree.contract.optimality import REFINED_DISTANCE, working_set
+    from sagfree.linalg.saddle import SaddleFactor
+    problem = sagfree.Problem(sagfree.scenes.groom(1, 100, seed=0)[0], stabilize=False)
+    optimum = alm.solve_alm(problem).p
+    w, lower, upper = problem.layout.weights, problem.lower, problem.upper
+    # the SQP step's situation: factored a step before the optimum, on the same working set
+    before = optimum - 1e-6 * (optimum - problem.p0) * working_set(optimum, lower, upper)
+    factor = SaddleFactor(problem.strand_jacobian(before), w, working_set(optimum, lower, upper))
+    fresh = kkt_optimality(problem, optimum)
+    assert fresh < 1e-6
+    refined = kkt_optimality(problem, optimum, nearby=factor)
+    assert abs(refined - fresh) <= 2 * REFINED_DISTANCE
+    J, c, g = problem.strand_jacobian(optimum), problem.residual(optimum), w * (optimum - problem.p0)
+    assert factor.solve_nearby(J, g, c, REFINED_DISTANCE) is not None  # it was refined, not refactored
+    # at a point far away the refinement diverges or stalls: None, and the measure factors afresh
+    far = SaddleFactor(problem.strand_jacobian(problem.p0), w, working_set(optimum, lower, upper))
+    assert far.solve_nearby(J, g, c, REFINED_DISTANCE) is None
+    assert kkt_optimality(problem, optimum, nearby=far) == fresh
+    # another free set: not used
+    smaller = working_set(optimum, lower, upper)
+    smaller[np.flatnonzero(smaller)[0]] = False
+    other = SaddleFactor(J, w, smaller)
+    assert kkt_optimality(problem, optimum, nearby=other) == fresh
+
+
 def test_kkt_measure_matches_a_dense_reference_and_separates_optimal_from_feasible():
     problem = sagfree.Problem(sagfree.scenes.curly(n=30), stiffness="strand")
     optimum = sagfree.solve(problem).p

@@ -23,6 +23,8 @@ TOL = 1e-8
 #: ``converged``. 1e-6 is below what rounding allows on some 200-vertex strands (2.1e-6 at the best
 #: point ours or Ipopt found on one of them).
 KKT_TOL = 1e-5
+#: accuracy (p's units) of a KKT distance found by refining a nearby factorization (kkt_optimality)
+REFINED_DISTANCE = 1e-4 * KKT_TOL
 
 
 def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
@@ -51,7 +53,14 @@ def gradient_scale(weights: np.ndarray, J) -> np.ndarray:
     return weights + column_norms(J) + 1e-300
 
 
-def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float:
+def working_set(p, lower, upper, near: float = 1e-6) -> np.ndarray:
+    """The variables farther than ``near`` of their box's width from both bounds (kkt_optimality's
+    first working set)."""
+    slack = near * (upper - lower)
+    return (p - lower > slack) & (upper - p > slack)
+
+
+def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6, nearby=None) -> float:
     """Distance of p from a KKT point, in the units of p (zero exactly at a KKT point): the largest
     entry of the equality-constrained SQP step with the regularizer's Hessian
     W = diag(w) on a working set F of free variables,
@@ -70,16 +79,20 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6) -> float
     one parameter against another (the strand multiplier S against the rest shape): there the
     gradient step g / h is tiny, because h is dominated by ||J_{:,j}||^2, while the constrained
     step is not.
+
+    ``nearby``: the linalg.saddle.SaddleFactor of a solver's last step at a point near p (asc's SQP
+    step), reused by iterative refinement where its free set is the first working set
+    (constrained_step): the distance is the same to rounding, without a factorization.
     """
     J = problem.strand_jacobian(p)
     c, regularizer_gradient = problem.residual(p), problem.objective_gradient(p)
     w, lower, upper = problem.layout.weights, problem.layout.lower, problem.layout.upper
-    slack = near * (upper - lower)
     at_lower = p - lower <= upper - p
-    active = (p - lower <= slack) | (upper - p <= slack)
+    active = ~working_set(p, lower, upper, near)
     scale = gradient_scale(w, J)
     for _ in range(10):
-        solution = constrained_step(J, w, regularizer_gradient, c, ~active)
+        solution = constrained_step(J, w, regularizer_gradient, c, ~active, nearby, REFINED_DISTANCE)
+        nearby = None  # a changed working set needs its own factorization
         if solution is None:  # too few free directions: free the variables near but not on a bound
             loose = active & (p > lower) & (p < upper)
             if not loose.any():

@@ -45,6 +45,7 @@ class SaddleFactor:
     def __init__(self, J, w, free, curvature=None):
         self.free = np.asarray(free, dtype=bool)
         self.rows, self.n = J.shape
+        self.w, self.plain = w, curvature is None
         self.singular = bool(self.free.sum() < self.rows)  # J_F cannot have full row rank
         if self.singular:
             return
@@ -85,9 +86,48 @@ class SaddleFactor:
         return np.where(self.free, solution[:n], 0.0), solution[n:]
 
 
-def constrained_step(J, w, gradient, c, free):
+    def solve_nearby(self, J, gradient, c, accuracy: float):
+        """(d, lam) of the saddle system of another Jacobian J (same weights, no curvature, same free
+        set) from this factorization, by iterative refinement, or None where it does not converge
+        within REFINEMENTS corrections: each correction solves this system for the residual of J's,
+        so the error contracts by ~|K^-1 (K_J - K)|, small for the J of a nearby p (the point after
+        the SQP step that this factor made). Converged when a correction moves d by at most
+        ``accuracy`` (absolute, p's units: near a KKT point d is ~1e-10 and the rounding of the
+        residual's O(1) terms that cancel leaves it 1e-14..1e-11 of noise, whatever the
+        factorization) and lam by at most REFINED of its largest entry. After the SQP step of
+        asc, one correction reaches that noise; each costs a tenth of a band LU."""
+        gradient, c = np.asarray(gradient, dtype=float), np.asarray(c, dtype=float)
+        d, lam = self.solve(gradient, c)
+        for _ in range(REFINEMENTS):
+            # K_J [d; lam] + [gradient_F; c] on the free rows and the constraints: the residual
+            residual_gradient = np.where(self.free, gradient + self.w * d + J.T @ lam, 0.0)
+            step, step_lam = self.solve(residual_gradient, c + J @ d)
+            d += step
+            lam += step_lam
+            if not (np.all(np.isfinite(step)) and np.all(np.isfinite(step_lam))):
+                return None
+            if (np.abs(step).max(initial=0.0) <= accuracy
+                    and np.abs(step_lam).max(initial=0.0) <= REFINED * np.abs(lam).max(initial=0.0)):
+                return d, lam
+        return None
+
+
+#: corrections of SaddleFactor.solve_nearby before it gives up, and the relative size of a last
+#: correction of the multipliers that ends it
+REFINEMENTS = 4
+REFINED = 1e-10
+
+
+def constrained_step(J, w, gradient, c, free, nearby: SaddleFactor | None = None, accuracy: float = 1e-9):
     """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c] with W = diag(w), d = 0
-    off F; None if the system is singular (SaddleFactor, factored for this one solve)."""
+    off F; None if the system is singular (SaddleFactor, factored for this one solve). ``nearby``:
+    a factorization of the same system at a nearby p (same w, same F, no curvature), tried first
+    by iterative refinement to ``accuracy`` in d (SaddleFactor.solve_nearby)."""
+    if (nearby is not None and not nearby.singular and nearby.plain
+            and np.array_equal(nearby.free, free) and (nearby.w is w or np.array_equal(nearby.w, w))):
+        solution = nearby.solve_nearby(J, gradient, c, accuracy)
+        if solution is not None:
+            return solution
     factor = SaddleFactor(J, w, free)
     return None if factor.singular else factor.solve(gradient, c)
 
