@@ -73,10 +73,8 @@ class JacobianPattern:
             _STRUCTURES[key] = structure
         (self._target, self._source, self.indices, self.indptr, self.csr_indptr, self.csr_indices,
          self.csr_order) = structure
-        self._scale = np.concatenate([
-            np.broadcast_to(-slots.coefficient[:, None, :] / row_scale[ix][:, :, None],
-                            (*ix.shape, slots.index.shape[1])).ravel()
-            for ix, slots in stencils])[self._source]
+        self._scale = np.concatenate([(slots.coefficient[:, None, :] / -row_scale[ix][:, :, None]).ravel()
+                                      for ix, slots in stencils])[self._source]
 
     def values(self, *stencil_jacobians: np.ndarray) -> np.ndarray:
         """CSC values of dc/dp from the stencil kinds' parameter Jacobians (in constructor order)."""

@@ -746,7 +746,7 @@ def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
                          ("bending and twisting stiffness (E, G) pi r^4", bend_stiffness),
                          ("stretch stiffness (E, G) pi r^2", stretch_stiffness)):
         values = np.asarray(values, dtype=float)
-        if not np.all(np.isfinite(values) & (values > 1e-290)) or np.any(values > 1e290):
+        if not (values.min() > 1e-290 and values.max() < 1e290):  # NaN fails both comparisons
             raise ValueError(f"strand {name} out of double-precision range ({np.min(values):.3g} to "
                              f"{np.max(values):.3g}): check the units of radius (m), moduli (Pa), density "
                              "(kg/m^3) and coordinates (m)")
