@@ -42,8 +42,33 @@ class VertexKinematics:
 
 def vertex_kinematics(y, reference) -> VertexKinematics:
     """Kinematics of the vertex stencil ``y`` (11) given its reference data (13)."""
+    return vertex_kinematics_of_edges(stencil_edges(y), reference)
+
+
+def stencil_edges(y):
+    """z = (e_{i-1}, th_{i-1}, e_i, th_i) (8) of the vertex stencil y (11), e_{i-1} = x_i - x_{i-1}
+    and e_i = x_{i+1} - x_i: the stencil's energy depends on y only through z (it is invariant
+    under translation), and z = T y with the constant ``EDGES_OF_STENCIL`` T."""
     x0, th0, x1, th1, x2 = y[0:3], y[3], y[4:7], y[7], y[8:11]
-    e0, e1 = x1 - x0, x2 - x1
+    return ca.vertcat(x1 - x0, th0, x2 - x1, th1)
+
+
+def _edges_of_stencil() -> ca.DM:
+    T = ca.DM(8, VERTEX_DOFS)
+    for k in range(3):
+        T[k, k], T[k, 4 + k] = -1, 1          # e_{i-1} = x_i - x_{i-1}
+        T[4 + k, 4 + k], T[4 + k, 8 + k] = -1, 1  # e_i = x_{i+1} - x_i
+    T[3, 3] = T[7, 7] = 1
+    return T
+
+
+#: T (8 x 11, entries 0 and +-1) with stencil_edges(y) = T y
+EDGES_OF_STENCIL = _edges_of_stencil()
+
+
+def vertex_kinematics_of_edges(z, reference) -> VertexKinematics:
+    """Kinematics of the vertex stencil from its edges and angles z = stencil_edges(y) (8)."""
+    e0, th0, e1, th1 = z[0:3], z[3], z[4:7], z[7]
     t0, t1 = e0 / ca.norm_2(e0), e1 / ca.norm_2(e1)
     a1_0 = transport(reference[0:3], t0, reference[3:6])
     a1_1 = transport(reference[6:9], t1, reference[9:12])

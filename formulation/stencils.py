@@ -16,8 +16,8 @@ from .compiled import BatchFunction, batch_functions
 from .curvature import check_variant, material_curvature
 from .energies import (EDGE_GEOMETRY, EDGE_PHYSICAL, TERMS, VERTEX_GEOMETRY, VERTEX_PHYSICAL,
                        bend_energy, stretch_energy, twist_energy)
-from .kinematics import (EDGE_DOFS, REFERENCE_SIZE, VERTEX_DOFS, VertexKinematics, edge_length,
-                         vertex_kinematics)
+from .kinematics import (EDGE_DOFS, EDGES_OF_STENCIL, REFERENCE_SIZE, VERTEX_DOFS, VertexKinematics, edge_length,
+                         stencil_edges, vertex_kinematics, vertex_kinematics_of_edges)
 
 #: the vertex kinematics k = (kappa4, m) through which the bend and twist energies see the DOFs
 KINEMATICS_SIZE = 5
@@ -61,15 +61,29 @@ class FixedShapeFunctions:
     hessian: BatchFunction
 
 
-def _derived(name: str, energy, y, inputs) -> list[ca.Function]:
+def _derived(name: str, energy, y, inputs, hessian=None) -> list[ca.Function]:
+    """The energy, gradient, parameter Jacobian and Hessian functions of a stencil's energy in its
+    DOFs y; ``hessian``: the Hessian's expression where the stencil builds it its own way."""
     physical = inputs[-1]
     g = ca.gradient(energy, y)
     return [
         ca.Function(f"{name}_energy", inputs, [energy]),
         ca.Function(f"{name}_gradient", inputs, [ca.densify(g)]),
         ca.Function(f"{name}_parameter_jacobian", inputs, [ca.densify(ca.jacobian(g, physical))]),
-        ca.Function(f"{name}_hessian", inputs, [ca.densify(ca.hessian(energy, y)[0])]),
+        ca.Function(f"{name}_hessian", inputs, [ca.densify(ca.hessian(energy, y)[0] if hessian is None else hessian)]),
     ]
+
+
+def _vertex_hessian(variant: str, terms: tuple[str, ...], y, reference, geometry, physical):
+    """d2E/dy2 of the vertex stencil through its edges: E depends on the 11 DOFs only through
+    z = T y (kinematics.stencil_edges: two edge vectors and two angles), so d2E/dy2 = T^T (d2E/dz2) T.
+    Differentiating in 8 variables instead of 11 takes 36% fewer instructions (7.9K instead of 12.4K
+    per stencil, 4d curvature) in the Hessian that every stability evaluation and every implicit
+    simulation step assembles; T's entries are 0 and +-1, so the product is sums and differences."""
+    z = ca.SX.sym("z", 8)
+    energy = _vertex_energy(variant, terms, vertex_kinematics_of_edges(z, reference), geometry, physical)
+    T = EDGES_OF_STENCIL
+    return ca.substitute(ca.mtimes(T.T, ca.mtimes(ca.hessian(energy, z)[0], T)), z, stencil_edges(y))
 
 
 @lru_cache(maxsize=None)
@@ -96,7 +110,8 @@ def vertex_stencil(variant: str = "4d", terms: tuple[str, ...] = ("bend", "twist
     physical = ca.SX.sym("physical", len(VERTEX_PHYSICAL))
     kin = vertex_kinematics(y, reference)
     energy = _vertex_energy(variant, terms, kin, geometry, physical)
-    functions = _derived("vertex", energy, y, [y, reference, geometry, physical])
+    functions = _derived("vertex", energy, y, [y, reference, geometry, physical],
+                         _vertex_hessian(variant, terms, y, reference, geometry, physical))
     kappa = material_curvature(variant, kin)
     padded = ca.vertcat(kappa, ca.SX.zeros(4 - kappa.numel()))
     functions.append(ca.Function("vertex_geometry", [y, reference], [padded, kin.twist]))

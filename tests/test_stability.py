@@ -99,7 +99,10 @@ def test_stiffening_gradient_matches_finite_differences_along_restiffen(groom, o
     assert np.all(gradient[~stiffness] == 0) and np.all(gradient[stiffness] >= -1e-6 * gradient.max())
     relevant = stiffness & (gradient > 1e-3 * gradient.max())  # the multipliers the loop raises
     direction = np.where(relevant, np.random.default_rng(1).uniform(0.0, 1.0, p.size), 0.0)
-    h = 1e-4
+    # lambda carries ~1e-7 relative rounding (the mass-scaled Hessian's spread): at h = 1e-4 that
+    # is ~1e-3 of the quotient, which rounding-level changes of the Hessian moved by 2e-3; at 1e-3
+    # rounding and the concavity's truncation error are each ~2e-4 of it
+    h = 1e-3
     moved = [restiffen(problem, p, p + s * h * direction) for s in (1, -1)]
     for q in moved:  # exact for bend and twist; the stretch term's rest lengths move the bend prefactor
         assert np.abs(problem.residual(q)).max() <= 1e-2 * h
