@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from sagfree.formulation import dofs
@@ -100,25 +101,52 @@ def max_vertex_force(problem: Problem, p: np.ndarray) -> float:
 
 
 def stiffening_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
-    out = {}
-    for block in (*STIFFNESS_BLOCKS, STRAND_BLOCK):
-        if block in problem.blocks:
-            ratio = p[problem.blocks[block]] / problem.layout.p0[problem.blocks[block]]
-            out[block] = {"max": float(ratio.max()), "mean": float(ratio.mean()),
-                          "stiffened": float(np.mean(ratio > STIFFENED))}
-    return out
+    """Per stiffness block: the largest and mean multiplier over its specified value, and the share
+    of its elements above STIFFENED."""
+    names, index, offsets = _blocks_of(problem, (*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    ratio = p[index] / problem.layout.p0[index]
+    statistics = _block_statistics(ratio, ratio, offsets, STIFFENED)
+    return {name: {"max": row[0], "mean": row[1], "stiffened": row[2]} for name, row in zip(names, statistics.tolist())}
 
 
 def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
-    out = {}
-    for block in REST_BLOCKS:
-        if block in problem.blocks:
-            ix = problem.blocks[block]
-            change = np.abs(p[ix] - problem.layout.p0[ix])
-            half_box = np.maximum(problem.layout.upper[ix] - problem.layout.p0[ix],
-                                  problem.layout.p0[ix] - problem.layout.lower[ix])
-            out[block] = {"max": float(change.max(initial=0.0)), "mean": float(change.mean()) if ix.size else 0.0,
-                          "box": float(np.max(change / np.where(half_box > 0, half_box, 1.0), initial=0.0))}
+    """Per rest block: the largest and mean absolute change from p0, and the largest change over
+    the box's half-width (the wider side)."""
+    names, index, offsets = _blocks_of(problem, REST_BLOCKS)
+    p0, lower, upper = problem.layout.p0[index], problem.layout.lower[index], problem.layout.upper[index]
+    change = np.abs(p[index] - p0)
+    half_box = np.maximum(upper - p0, p0 - lower)
+    statistics = _block_statistics(change, change / np.where(half_box > 0, half_box, 1.0), offsets, np.inf)
+    return {name: {"max": row[0], "mean": row[1], "box": row[3]} for name, row in zip(names, statistics.tolist())}
+
+
+def _blocks_of(problem: Problem, blocks) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(names, their indices concatenated, offsets of each block in them) of the blocks present."""
+    names = [block for block in blocks if block in problem.blocks]
+    parts = [problem.blocks[name] for name in names]
+    offsets = np.zeros(len(parts) + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum([part.size for part in parts])
+    return names, (np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)), offsets
+
+
+@numba.njit(cache=True)
+def _block_statistics(values, other, offsets, threshold):  # pragma: no cover - compiled
+    """Per block b (entries offsets[b]:offsets[b + 1]): max and mean of values (0 if empty), the
+    share of values above threshold, max of other (a NaN entry makes its max NaN, as numpy's):
+    one pass where numpy took ~10 calls per block (the summaries of every Result)."""
+    out = np.zeros((offsets.size - 1, 4))
+    for b in range(offsets.size - 1):
+        count = offsets[b + 1] - offsets[b]
+        largest, total, above, other_largest = -np.inf, 0.0, 0, -np.inf
+        for k in range(offsets[b], offsets[b + 1]):
+            if not values[k] <= largest:  # larger, or NaN: kept from then on
+                largest = values[k] if largest == largest else largest
+            if not other[k] <= other_largest:
+                other_largest = other[k] if other_largest == other_largest else other_largest
+            total += values[k]
+            above += values[k] > threshold
+        if count:
+            out[b, 0], out[b, 1], out[b, 2], out[b, 3] = largest, total / count, above / count, other_largest
     return out
 
 
