@@ -26,7 +26,7 @@ PARTS = [
     (alm, "gram", "Gauss-Newton Hessian J^T J (banded)"),
     (Problem, "residual", "residual c(p)"),
     (alm, "make_result", "Result: summaries and stability"),
-    (alm, "kkt_optimality", "KKT confirmation (band LU)"),
+    (alm, "kkt_optimality", "KKT confirmation (refined SQP LU or band LU)"),
     (alm, "_sqp_step", "SQP steps where the constraint stalls (band LU)"),
     (alm, "_newton_sqp", "Newton-SQP steps (exact Hessian, band LU)"),
     (Problem, "__init__", "Problem construction"),
