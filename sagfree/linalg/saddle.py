@@ -85,7 +85,6 @@ class SaddleFactor:
         solution[n:] = reduced[size:]
         return np.where(self.free, solution[:n], 0.0), solution[n:]
 
-
     def solve_nearby(self, J, gradient, c, accuracy: float):
         """(d, lam) of the saddle system of another Jacobian J (same weights, no curvature, same free
         set) from this factorization, by iterative refinement, or None where it does not converge
