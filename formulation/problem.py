@@ -25,7 +25,7 @@ from . import at_rest, dofs
 from .curvature import check_variant
 from .energies import TERMS
 from .frames import Frames, bishop_frames, default_director, project_director
-from .jacobian import JacobianPattern, StrandJacobian
+from .jacobian import JacobianPattern, StrandJacobian, scatter_values
 from .bodies import parse_body
 from .contact import Contacts, contact_penalty, find_contacts
 from .parameters import BLOCKS, CONTACT_BLOCK, STRAND_BLOCK, ParameterLayout, SlotMap
@@ -508,10 +508,10 @@ class Problem:
         if self._band_scatter is None:
             self._band_scatter = _band_scatter(
                 [self.edge_dofs, self.vertex_dofs], self.q_star.size)
-        target, lower = self._band_scatter
-        values = np.concatenate([h[mask] for (_, h), mask in zip(self._hessian_blocks(p, q, frames), lower)])
+        target, source, ones = self._band_scatter
+        entries = np.concatenate([h.ravel() for _, h in self._hessian_blocks(p, q, frames)])
         size = self.q_star.size
-        return np.bincount(target, values, minlength=(HALF_BANDWIDTH + 1) * size).reshape(-1, size)
+        return scatter_values(target, source, ones, entries, (HALF_BANDWIDTH + 1) * size).reshape(-1, size)
 
     def contact_matrix(self) -> sp.csc_matrix:
         """The supports' part of dc/dp (free DOFs x parameters, constant): each support's direction
@@ -776,20 +776,23 @@ _BAND_SCATTERS: dict = {}
 
 
 def _band_scatter(stencil_indices: list[np.ndarray], size: int):
-    """For each stencil kind: the lower-triangle mask of its Hessian blocks; overall: the flat index
-    into (HALF_BANDWIDTH + 1, size) band storage of every kept entry (~0.15 ms on a 100-vertex
-    strand, cached)."""
+    """(target, source, ones) of jacobian.scatter_values from the stencil kinds' raveled Hessian
+    blocks, concatenated in order, to (HALF_BANDWIDTH + 1, size) band storage: the lower-triangle
+    entries, each kind's in C order, as the np.bincount of their values did (the same sums in the
+    same order, 28 -> 6 us at 100 vertices); ~0.15 ms to build, cached."""
     key = (size, *(index.shape for index in stencil_indices), *(index.tobytes() for index in stencil_indices))
     return _memo(_BAND_SCATTERS, key, lambda: _build_band_scatter(stencil_indices, size))
 
 
 def _build_band_scatter(stencil_indices: list[np.ndarray], size: int):
-    targets, masks = [], []
+    targets, sources, offset = [], [], 0
     for index in stencil_indices:
         width = index.shape[1]
         row = np.repeat(index, width, axis=1).reshape(-1, width, width)
         col = np.tile(index, (1, width)).reshape(-1, width, width)
         lower = row >= col
         targets.append((row[lower] - col[lower]) * size + col[lower])
-        masks.append(lower)
-    return np.concatenate(targets), masks
+        sources.append(offset + np.flatnonzero(lower.ravel()))
+        offset += lower.size
+    target, source = np.concatenate(targets).astype(np.int64), np.concatenate(sources).astype(np.int64)
+    return target, source, np.ones(target.size)
