@@ -32,7 +32,7 @@ class SaddleFactor:
     (_reduced_saddle_band). The system is then a band (half-width 25 on a 100-vertex element strand with
     every variable free, 19 at the linear start, whose stiffness multipliers are fixed) that
     LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU; a solve (dgbtrs) costs
-    about a fifth of the factorization (30 against 157 us at 100 vertices). A column that fills most rows
+    about a fifth of the factorization (27 against 151 us at 100 vertices). A column that fills most rows
     (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
     system of F alone, assembled in compressed columns. ``curvature`` (the constraints' curvature in
     the exact Hessian of a Lagrangian, asc's Newton-SQP) couples the entries of each stencil, which
@@ -95,7 +95,7 @@ class SaddleFactor:
         residual's O(1) terms that cancel leaves it 1e-14..1e-11 of noise, whatever the
         factorization) and lam by at most REFINED of its largest entry. After the SQP step of
         asc, one correction reaches that noise; each (two triangular solves and two products with J)
-        takes about a quarter of a band LU's time (40 against 157 us at 100 vertices)."""
+        takes about a third of a band LU's time (54 against 151 us at 100 vertices)."""
         gradient, c = np.asarray(gradient, dtype=float), np.asarray(c, dtype=float)
         d, lam = self.solve(gradient, c)
         for _ in range(REFINEMENTS):
