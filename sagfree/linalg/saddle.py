@@ -32,8 +32,8 @@ class SaddleFactor:
     (_reduced_saddle_band). The system is then a band (half-width 25 on a 100-vertex element strand with
     every variable free, 19 at the linear start, whose stiffness multipliers are fixed) that
     LAPACK's dgbtrf factors in O(n), about 2.5 times faster than SuperLU; a solve (dgbtrs) costs
-    about a fifth of the factorization (27 against 151 us at 100 vertices). A column that fills most rows
-    (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
+    about a fifth of the factorization (27 against 151 us at 100 vertices). A column that fills
+    most rows (the strand multiplier of ``stiffness="strand"``) would make the band full: then SuperLU on the
     system of F alone, assembled in compressed columns. ``curvature`` (the constraints' curvature in
     the exact Hessian of a Lagrangian, asc's Newton-SQP) couples the entries of each stencil, which
     sit next to each other in the interleaved order: it widens the band a little. Where the system
