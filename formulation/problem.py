@@ -407,7 +407,8 @@ class Problem:
                      self.edge_functions.parameter_jacobian, self.vertex_fixed_functions.parameter_jacobian)
         if not all(function.compiled for function in functions):
             return None
-        slots = [tuple(np.ascontiguousarray(a) for a in m.arrays) for m in (self.layout.edge_map, self.layout.vertex_map)]
+        slots = [tuple(np.ascontiguousarray(a) for a in slot_map.arrays)
+                 for slot_map in (self.layout.edge_map, self.layout.vertex_map)]
         kinematics, transposed = self.kinematics_at_rest
         # C order throughout: the drivers read the arrays' data as contiguous blocks
         inputs = (*slots, *(np.ascontiguousarray(a) for a in (self._at_rest[0], self._edge_geometry, kinematics,

@@ -70,7 +70,8 @@ def _derived(name: str, energy, y, inputs, hessian=None) -> list[ca.Function]:
         ca.Function(f"{name}_energy", inputs, [energy]),
         ca.Function(f"{name}_gradient", inputs, [ca.densify(g)]),
         ca.Function(f"{name}_parameter_jacobian", inputs, [ca.densify(ca.jacobian(g, physical))]),
-        ca.Function(f"{name}_hessian", inputs, [ca.densify(ca.hessian(energy, y)[0] if hessian is None else hessian)]),
+        ca.Function(f"{name}_hessian", inputs,
+                    [ca.densify(ca.hessian(energy, y)[0] if hessian is None else hessian)]),
     ]
 
 

@@ -106,7 +106,8 @@ def stiffening_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, f
     names, index, offsets = _blocks_of(problem, (*STIFFNESS_BLOCKS, STRAND_BLOCK))
     ratio = p[index] / problem.layout.p0[index]
     statistics = _block_statistics(ratio, ratio, offsets, STIFFENED)
-    return {name: {"max": row[0], "mean": row[1], "stiffened": row[2]} for name, row in zip(names, statistics.tolist())}
+    return {name: {"max": row[0], "mean": row[1], "stiffened": row[2]}
+            for name, row in zip(names, statistics.tolist())}
 
 
 def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
