@@ -5,17 +5,19 @@ import multiprocessing
 import os
 import signal
 import stat
+import struct
 import subprocess
 import sys
 import time
 import warnings
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
 
 import sagfree
 from sagfree.cli import main
-from sagfree.frontend.batch import map_strands
+from sagfree.frontend.batch import _kill_workers, map_strands
 from sagfree.scenes.npz import load_parameters
 
 HORIZONTAL = sagfree.scenes.horizontal(n=10)
@@ -166,6 +168,25 @@ def test_a_batch_joins_its_worker_processes():
     "Exception ignored ... OSError: [Errno 9] Bad file descriptor" after `sagfree simulate`."""
     assert map_strands(abs, [(-k,) for k in range(8)], jobs=2) == list(range(8))
     assert multiprocessing.active_children() == []
+
+
+def test_killed_workers_release_a_manager_thread_waiting_for_a_half_sent_result():
+    """A worker killed while sending a chunk's results left a partial message on the result pipe;
+    the pool's manager thread waited for the rest forever, and so did interpreter exit (a Ctrl-C
+    that printed the resume command and never returned). Here the partial message is written by hand."""
+    pool = ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("fork"))
+    assert pool.submit(abs, -1).result() == 1
+    manager, writer = pool._executor_manager_thread, pool._result_queue._writer
+    try:
+        os.write(writer.fileno(), struct.pack("!i", 1000) + b"partial")  # a header for 1000 bytes, 7 sent
+        time.sleep(0.2)
+        assert manager.is_alive()  # blocked in recv()
+        _kill_workers(pool)
+        pool.shutdown(wait=False, cancel_futures=True)
+        manager.join(timeout=10)
+        assert not manager.is_alive()
+    finally:
+        writer.close()  # unblocks the thread if the assertion failed, so that pytest can exit
 
 
 def test_simulate_says_how_far_the_geometry_is_from_the_parameters(tmp_path, capsys):

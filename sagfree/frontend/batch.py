@@ -146,8 +146,7 @@ def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, tim
                     results[k] = [on_crash(f"timed out: no chunk finished within {timeout:.0f} s")
                                   for _ in chunks[k]]
                     finished(k, results[k])
-                for process in list(getattr(pool, "_processes", {}).values()):
-                    process.kill()
+                _kill_workers(pool)
                 break
             for future in done:
                 k = pending.pop(future)
@@ -159,8 +158,7 @@ def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, tim
         else:
             killed = False
     except BaseException:  # Ctrl-C (or an error here): the workers must not go on without us
-        for process in list(getattr(pool, "_processes", {}).values()):
-            process.kill()
+        _kill_workers(pool)
         raise
     finally:
         # idle workers are joined; killed ones are not waited for, but the pool's manager thread is
@@ -171,6 +169,22 @@ def _run_on_processes(function, chunks, arguments, jobs, finished, on_crash, tim
         if killed and manager is not None:
             manager.join(timeout=MANAGER_JOIN)
     return results
+
+
+def _kill_workers(pool: ProcessPoolExecutor) -> None:
+    """Kill the pool's worker processes and close this process's writing end of their result pipe.
+
+    A worker killed while sending a chunk's results (a pickle larger than the pipe's 64 KiB buffer is
+    sent in pieces) leaves a partial message on the pipe: the pool's manager thread then waits in
+    recv() for bytes that never come, and interpreter exit, which joins that thread, hangs (a Ctrl-C
+    that printed the resume command and never returned). With every writing end closed the read
+    ends in EOF, and the manager thread marks the pool broken and ends. CPython's own clean-up
+    (terminate_broken, gh-94777) unblocks only the call queue's writer."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.kill()
+    writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)
+    if writer is not None:
+        writer.close()
 
 
 def _ignore_interrupts() -> None:
