@@ -42,8 +42,9 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     clamped at both ends 3e-5 above the optimum in R). So after NEWTON_AFTER outer iterations in a
     row whose inner solves stepped and ended at a feasible p whose KKT distance is still above
     kkt_tol, NEWTON_STEPS steps of SQP with the exact Hessian of the Lagrangian
-    W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian_entries, least-squares multipliers, one band
-    LU each, a second-order correction back to c = 0) are tried (counted as ``newton_sqp``); their
+    W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian_entries; the least-squares multipliers
+    at the start, then each step's own; one band LU each, a second-order correction back to c = 0)
+    are tried (counted as ``newton_sqp``); their
     point is taken if it passes the convergence test without raising R (_newton_sqp). The same is
     tried where the constraint stalls near feasibility (|c|_inf <= NEWTON_NEAR) and the SQP step
     below fails: on strands of 1000 and more vertices that step (diagonal W) is useless, and the
@@ -360,12 +361,18 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
     |c|_inf <= tol, KKT distance <= kkt_tol and R no larger than at p (plus rounding).
 
     Each step solves [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w) +
-    sum lam_r c_r''(p) (lam: least-squares multipliers at p) on the variables strictly inside their
-    boxes (linalg.saddle.SaddleFactor with the curvature, a band LU); a trial point that leaves
-    |c|_inf > tol gets the least diag(w)-norm correction back to c = 0 (the same J), and with
-    ``halvings`` > 0 the step is shortened as _newton_trial says. (The correction with the step's
-    own factors, i.e. in the metric W, saved a factorization per step but left 2 of 6 strands of
-    groom(6, 2000) at max_iterations.)
+    sum lam_r c_r''(p) on the working set F of contract.optimality (the variables farther than 1e-6
+    of their box's width from its bounds, or, where that system is singular, those not on a bound;
+    linalg.saddle.SaddleFactor with the curvature, a band LU);
+    lam is the least-squares multipliers at the start and then the previous step's own, as in
+    textbook SQP (Nocedal & Wright, section 18.1). A trial point that leaves |c|_inf > tol gets the
+    least diag(w)-norm correction back to c = 0 (the same J), and with ``halvings`` > 0 the step is
+    shortened as _newton_trial says. (The correction with the step's own factors, i.e. in the metric
+    W, saved a factorization per step but left 2 of 6 strands of groom(6, 2000) at max_iterations;
+    refining the plain system with those factors cost as much as its band LU at 2000 vertices.)
+    Against least-squares multipliers at every step and every variable strictly inside its box
+    (stiffness multipliers a hair above 1 then enlarge the system), a 2000-vertex strand's
+    Newton-SQP phase takes a quarter less time for as many steps (benchmarks/RESULTS.md).
     """
     lower, upper = problem.layout.lower, problem.layout.upper
     start_objective = problem.objective(p)
@@ -373,15 +380,19 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
     for _ in range(NEWTON_STEPS):
         J = problem.strand_jacobian(x)
         c, gradient = problem.residual(x), model.w * (x - model.p0)
-        free = (x > lower) & (x < upper)
-        estimate = least_squares_multipliers(gradient, J, gradient_scale(model.w, J), x, lower, upper)
-        lam = estimate if np.all(np.isfinite(estimate)) else lam
-        if lam is None:
-            return None
-        factor = SaddleFactor(J, model.w, free, problem.constraint_hessian_entries(x, lam))
+        free = working_set(x, lower, upper)
+        if lam is None:  # the first step's; each later one takes the previous step's
+            lam = least_squares_multipliers(gradient, J, gradient_scale(model.w, J), x, lower, upper)
+            if not np.all(np.isfinite(lam)):
+                return None
+        curvature = problem.constraint_hessian_entries(x, lam)
+        factor = SaddleFactor(J, model.w, free, curvature)
+        if factor.singular:  # too few free directions (as in kkt_optimality): free those near a bound
+            free = (x > lower) & (x < upper)
+            factor = SaddleFactor(J, model.w, free, curvature)
         if factor.singular:
             return None
-        step, _ = factor.solve(gradient, c)
+        step, lam = factor.solve(gradient, c)
         if not np.all(np.isfinite(step)):
             return None
         counts["newton_sqp"] += 1
