@@ -6,7 +6,10 @@
    part's time includes what it calls, so nested rows overlap: the SQP steps contain their
    residuals, the Result its residual): share of the total;
 2. the same batch on ``jobs`` worker processes: wall time against the one-process time divided by
-   the jobs; the difference is process start-up, serialization and imbalance.
+   the jobs, and against ``jobs`` independent processes (forked, no pool, no results sent back)
+   each solving its share side by side: the first difference is what sharing the machine's cores
+   costs (on a VM whose vCPUs slow each other down it is most of it), the second what the batch
+   runner adds (start-up, transfer, imbalance).
 """
 from __future__ import annotations
 
@@ -82,8 +85,31 @@ def main() -> None:
     start = time.perf_counter()
     sagfree.optimize(strands, jobs=args.jobs)
     wall = time.perf_counter() - start
+    alone = side_by_side(strands, args.jobs)
     print(f"\n2. the same batch on {args.jobs} worker processes: wall {wall:.2f} s; one process / {args.jobs} = "
-          f"{plain / args.jobs:.2f} s; overhead (start-up, transfer, imbalance) {wall - plain / args.jobs:+.2f} s")
+          f"{plain / args.jobs:.2f} s; {args.jobs} independent processes side by side, each its share: "
+          f"{alone:.2f} s\n   sharing the cores {alone - plain / args.jobs:+.2f} s, the batch runner "
+          f"(start-up, transfer, imbalance) {wall - alone:+.2f} s")
+
+
+def side_by_side(strands, jobs: int) -> float:
+    """Wall seconds of ``jobs`` forked processes each solving a contiguous share of ``strands`` in
+    itself (jobs=1), started together: the machine's own parallel speed, without the batch runner
+    (NaN where there is no fork)."""
+    if not hasattr(os, "fork"):
+        return float("nan")
+    bounds = [len(strands) * k // jobs for k in range(jobs + 1)]
+    start = time.perf_counter()
+    children = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        pid = os.fork()
+        if pid == 0:  # the child: already warm (forked from this process), solves its share and leaves
+            sagfree.optimize(strands[a:b], jobs=1)
+            os._exit(0)
+        children.append(pid)
+    for pid in children:
+        os.waitpid(pid, 0)
+    return time.perf_counter() - start
 
 
 if __name__ == "__main__":

@@ -21,10 +21,9 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
     Lagrangian then lost feasibility from it. With a pinned tip, from p0 too: from the linear start
     asc ended at other KKT points or crawled (horizontal(n=100, tip="pinned"): R 0.49 after
-    stabilization against Ipopt's 6.8e-5; n=50 and pinned groom strands: max_iterations), where
-    from p0 it reaches Ipopt's optimum in one to three Gauss-Newton steps (R within 0.25% on n from
-    20 to 1000). A clamped tip keeps the linear start: both reach the optimum there, the linear
-    start the closer (to 1e-6 in R on the cable, p0 to 2e-4). The first
+    stabilization against Ipopt's 6.8e-5), where from p0 it reaches Ipopt's optimum in a few
+    Gauss-Newton steps. A clamped tip keeps the linear start, from which asc reaches the optimum
+    there more closely (benchmarks/RESULTS.md, 2026-12-03). The first
     inner solve is loose (omega0 = 1). An outer iteration whose inner solve took no step only
     tightens omega, by as many factors of 10 as it takes to fall below the current pi (one factor
     per outer iteration repeated the same test at the same p: 10.9 -> 6.4 outer iterations per
