@@ -368,9 +368,9 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
     Each step solves [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w) +
     sum lam_r c_r''(p) on the working set F of contract.optimality (the variables farther than 1e-6
     of their box's width from its bounds, or, where that system is singular, those not on a bound;
-    linalg.saddle.SaddleFactor with the curvature, a band LU);
-    lam is the least-squares multipliers at the start and then the previous step's own, as in
-    textbook SQP (Nocedal & Wright, section 18.1). A trial point that leaves |c|_inf > tol gets the
+    linalg.saddle.SaddleFactor with the curvature, a band LU); lam is the least-squares multipliers
+    at the start and then the previous step's own, as in textbook SQP (Nocedal & Wright, section
+    18.1). A trial point that leaves |c|_inf > tol gets the
     least diag(w)-norm correction back to c = 0 (the same J), and with ``halvings`` > 0 the step is
     shortened as _newton_trial says. (The correction with the step's own factors, i.e. in the metric
     W, saved a factorization per step but left 2 of 6 strands of groom(6, 2000) at max_iterations;
