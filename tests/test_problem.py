@@ -221,6 +221,21 @@ def test_locate_names_every_entry_of_p():
         layout.locate(layout.size)
 
 
+@pytest.mark.parametrize("stiffness", ["element", "strand"])
+def test_element_numbers_agree_with_locate(stiffness):
+    """element_numbers (the stabilization's note on many floors at once) names each entry as locate."""
+    layout = sagfree.Problem(sagfree.scenes.horizontal(n=7), stiffness=stiffness).layout
+    everything = np.random.default_rng(0).permutation(layout.size)
+    by_block = layout.element_numbers(everything)
+    assert list(by_block) == [block for block in layout.blocks]  # BLOCKS order
+    for block, numbers in by_block.items():
+        entries = everything[np.isin(everything, layout.blocks[block])]  # in the order given
+        labels = [layout.locate(int(i))[1] for i in entries]  # "edge 2", "vertex 3" or "strand"
+        assert numbers.tolist() == [0 if label == "strand" else int(label.split()[1]) for label in labels]
+    with pytest.raises(IndexError):
+        layout.element_numbers([0, layout.size])
+
+
 def test_parameter_layout_and_physical_values():
     strand = sagfree.scenes.horizontal(n=10)
     pb = sagfree.Problem(strand)

@@ -190,27 +190,16 @@ def _add(counts: dict, more: dict) -> dict:
 def _floors_note(problem: Problem, stabilized: Problem, rounds: int, before: float, after: float) -> str:
     """Where the stiffness floors rose, and what they cost in R."""
     raised = np.flatnonzero(stabilized.layout.lower > problem.layout.lower)
-    where: dict[str, list[str]] = {}
-    for index in raised:
-        block, element = problem.layout.locate(int(index))
-        where.setdefault(block, []).append(element.split()[-1])
-    places = "; ".join(f"{block} at {_ranges(elements)}" for block, elements in where.items())
+    places = "; ".join(f"{block} at {'strand' if block == STRAND_BLOCK else _ranges(numbers)}"
+                       for block, numbers in problem.layout.element_numbers(raised).items())
     change = (after - before) / before if before else np.inf
     return (f"; stabilized in {rounds} round{'s' if rounds != 1 else ''}: stiffness floors raised "
             f"({places or 'none'}), R {change:+.2%}")
 
 
-def _ranges(elements: list[str]) -> str:
-    """'1-4, 7' from ['1', '2', '3', '4', '7'] (a strand multiplier: 'strand')."""
-    if not all(e.isdigit() for e in elements):
-        return ", ".join(elements)
-    numbers, spans = sorted(int(e) for e in elements), []
-    start = previous = numbers[0]
-    for number in numbers[1:] + [None]:
-        if number is not None and number == previous + 1:
-            previous = number
-            continue
-        spans.append(f"{start}-{previous}" if previous > start else f"{start}")
-        if number is not None:
-            start = previous = number
-    return ", ".join(spans)
+def _ranges(numbers: np.ndarray) -> str:
+    """'1-4, 7' from the element numbers [1, 2, 3, 4, 7] (any order, repeats ignored)."""
+    numbers = np.unique(numbers)
+    breaks = np.flatnonzero(np.diff(numbers) != 1)
+    starts, ends = numbers[np.r_[0, breaks + 1]], numbers[np.r_[breaks, numbers.size - 1]]
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in zip(starts.tolist(), ends.tolist()))
