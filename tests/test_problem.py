@@ -227,7 +227,7 @@ def test_element_numbers_agree_with_locate(stiffness):
     layout = sagfree.Problem(sagfree.scenes.horizontal(n=7), stiffness=stiffness).layout
     everything = np.random.default_rng(0).permutation(layout.size)
     by_block = layout.element_numbers(everything)
-    assert list(by_block) == [block for block in layout.blocks]  # BLOCKS order
+    assert list(by_block) == list(layout.blocks)  # BLOCKS order
     for block, numbers in by_block.items():
         entries = everything[np.isin(everything, layout.blocks[block])]  # in the order given
         labels = [layout.locate(int(i))[1] for i in entries]  # "edge 2", "vertex 3" or "strand"
