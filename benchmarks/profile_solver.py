@@ -20,14 +20,16 @@ import time
 import sagfree
 import sagfree.frontend.stabilize as stabilize
 import sagfree.solvers.alm as alm
+import sagfree.solvers.gauss_newton as gauss_newton
 from sagfree.formulation.problem import Problem
 
 PARTS = [
     (alm, "linear_start", "linear start (one band LU)"),
-    (alm, "solve_box_qp", "MPRGP QPs with the active-set Cholesky"),
-    (Problem, "strand_jacobian", "Jacobian dc/dp (compiled stencils + assembly)"),
-    (alm, "gram", "Gauss-Newton Hessian J^T J (banded)"),
-    (Problem, "residual", "residual c(p)"),
+    (gauss_newton, "inner_solve", "Gauss-Newton inner solves (compiled: QPs, J^T J, c, J)"),
+    (alm, "solve_box_qp", "MPRGP QPs outside them (least residual, Python loop)"),
+    (Problem, "strand_jacobian", "Jacobian dc/dp outside them"),
+    (alm, "gram", "Gauss-Newton Hessian J^T J outside them"),
+    (Problem, "residual", "residual c(p) outside them"),
     (alm, "make_result", "Result: summaries and stability"),
     (alm, "kkt_optimality", "KKT confirmation (refined SQP LU or band LU)"),
     (alm, "_sqp_step", "SQP steps where the constraint stalls (band LU)"),

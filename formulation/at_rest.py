@@ -12,7 +12,7 @@ with the physical parameters from p through the slot maps (parameters.SlotMap). 
 eight calls of a few microseconds each (two slot maps, two stencil batches, a stacked product, the
 scatter): a 100-vertex strand's residual took 33 us and its dc/dp 52 us, 17 and 39 us through
 this module (most of what is left: the two CasADi batches and the scatter). numba calls the CasADi
-batch drivers through their function pointers (compiled.BatchFunction.pointer). The sums run in the
+batch drivers at their addresses (compiled.BatchFunction.address, ``call_driver``). The sums run in the
 order of the numpy form (np.bincount, edges then vertices); only the chain rule's products are
 summed in another order than BLAS's, a rounding difference.
 """
@@ -20,18 +20,41 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 from .jacobian import scatter_values
 from .parameters import evaluate_slots
 
 
+@intrinsic
+def call_driver(typing_context, address, count, inputs, outputs):
+    """driver(count, inputs, outputs) for the batch driver at the integer ``address``
+    (compiled._DRIVER: void (long long, const double**, double**)); inputs and outputs are the
+    addresses of the pointer arrays. Cacheable, unlike a function pointer baked into the code."""
+    if not all(isinstance(t, types.Integer) for t in (address, count, inputs, outputs)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        byte_pointer = ir.IntType(8).as_pointer()
+        driver_type = ir.FunctionType(ir.VoidType(), [ir.IntType(64), byte_pointer, byte_pointer])
+        driver = builder.inttoptr(args[0], driver_type.as_pointer())
+        count = context.cast(builder, args[1], signature.args[1], types.int64)
+        builder.call(driver, [count, builder.inttoptr(args[2], byte_pointer), builder.inttoptr(args[3], byte_pointer)])
+        return context.get_dummy_value()
+
+    return types.void(address, count, inputs, outputs), codegen
+
+
 @numba.njit(cache=True)
 def _call(driver, count, first, second, third, out):  # pragma: no cover - compiled
-    """One batch driver (compiled._DRIVER) on ``count`` stencils: three inputs, one output."""
+    """The batch driver at address ``driver`` (compiled._DRIVER) on ``count`` stencils: three
+    inputs, one output."""
     inputs, outputs = np.empty(3, dtype=np.intp), np.empty(1, dtype=np.intp)
     inputs[0], inputs[1], inputs[2] = first.ctypes.data, second.ctypes.data, third.ctypes.data
     outputs[0] = out.ctypes.data
-    driver(count, inputs.ctypes.data, outputs.ctypes.data)
+    call_driver(driver, count, inputs.ctypes.data, outputs.ctypes.data)
 
 
 @numba.njit(cache=True)
@@ -57,7 +80,8 @@ def forces(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, verte
            edge_dofs, vertex_dofs, external, edge_gradient, vertex_gradient):  # pragma: no cover - compiled
     """f(q*, p) without the bodies' supports. edge_slots / vertex_slots: a SlotMap's (constant,
     linked, factor, source); kinematics_jacobian: dk/dy per vertex stencil (S, 5, 11); edge_gradient
-    / vertex_gradient: the drivers of the edge gradient and of the vertex kinematics gradient."""
+    / vertex_gradient: the addresses of the drivers of the edge gradient and of the vertex kinematics
+    gradient (compiled.BatchFunction.address)."""
     edge_physical, vertex_physical = _physical(p, edge_slots, vertex_slots)
     edges, edge_width = edge_q.shape
     vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
@@ -87,7 +111,7 @@ def jacobian_values(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinemati
                     size):  # pragma: no cover - compiled
     """The CSC values of dc/dp at q* on the strand's JacobianPattern (target, source, scale, size:
     its scatter; contact_jacobian: the supports' constant blocks, flattened); the other arguments as
-    for ``forces``, with edge_jacobian / vertex_jacobian the drivers of the edge parameter Jacobian
+    for ``forces``, with edge_jacobian / vertex_jacobian the drivers' addresses of the edge parameter Jacobian
     and of the vertex kinematics one."""
     edge_physical, vertex_physical = _physical(p, edge_slots, vertex_slots)
     edges, edge_width = edge_q.shape

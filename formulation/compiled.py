@@ -210,10 +210,6 @@ def batch_functions(functions: list[ca.Function]) -> list["BatchFunction"]:
     return [BatchFunction(f, d) for f, d in zip(functions, drivers)]
 
 
-#: The C type of a batch driver (``_DRIVER``): void (long long count, const double** inputs, double** outputs).
-DRIVER_POINTER = ctypes.CFUNCTYPE(None, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_void_p)
-
-
 class BatchFunction:
     """Evaluate ``function`` over N stencils through its compiled ``driver``, or CasADi's map."""
 
@@ -231,12 +227,13 @@ class BatchFunction:
         return self._driver is not None
 
     @functools.cached_property
-    def pointer(self):
-        """The compiled batch driver as a ctypes function pointer that numba code can call with the
-        addresses of the input and output arrays' data (at_rest): driver(count, inputs, outputs)."""
+    def address(self) -> int:
+        """The compiled batch driver's address, for numba code to call (at_rest.call_driver):
+        driver(long long count, const double** inputs, double** outputs). An integer, where a ctypes
+        function object cost numba ~3 us to unbox at every call."""
         if self._driver is None:
             raise RuntimeError(f"{self.function.name()} is not compiled")
-        return DRIVER_POINTER(ctypes.cast(self._driver, ctypes.c_void_p).value)
+        return int(ctypes.cast(self._driver, ctypes.c_void_p).value)
 
     def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:
         count = len(inputs[0])

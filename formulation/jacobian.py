@@ -104,7 +104,7 @@ class StrandJacobian:
 
     def column_norms(self) -> np.ndarray:
         """||J_{:,j}||^2 per parameter."""
-        return _csc_column_norms(self.pattern.indptr, self.data)
+        return csc_column_norms(self.pattern.indptr, self.data)
 
     def csc(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(indptr, indices, data) in column order (the storage itself, no copy)."""
@@ -126,7 +126,7 @@ class _Transposed:
 
     def __matmul__(self, y: np.ndarray) -> np.ndarray:
         J = self._jacobian
-        return _csc_rmatvec(J.pattern.indptr, J.pattern.indices, J.data, np.ascontiguousarray(y, dtype=float))
+        return csc_rmatvec(J.pattern.indptr, J.pattern.indices, J.data, np.ascontiguousarray(y, dtype=float))
 
 
 @numba.njit(cache=True)
@@ -149,7 +149,8 @@ def _csc_matvec(indptr, indices, data, x, rows):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _csc_rmatvec(indptr, indices, data, y):  # pragma: no cover - compiled
+def csc_rmatvec(indptr, indices, data, y):  # pragma: no cover - compiled
+    """J^T y for J in compressed columns (indptr, indices, data)."""
     out = np.zeros(indptr.size - 1)
     for j in range(indptr.size - 1):
         s = 0.0
@@ -160,7 +161,8 @@ def _csc_rmatvec(indptr, indices, data, y):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _csc_column_norms(indptr, data):  # pragma: no cover - compiled
+def csc_column_norms(indptr, data):  # pragma: no cover - compiled
+    """||J_{:,j}||^2 per column of J in compressed columns."""
     out = np.zeros(indptr.size - 1)
     for j in range(indptr.size - 1):
         s = 0.0

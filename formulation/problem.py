@@ -413,8 +413,33 @@ class Problem:
         # C order throughout: the drivers read the arrays' data as contiguous blocks
         inputs = (*slots, *(np.ascontiguousarray(a) for a in (self._at_rest[0], self._edge_geometry, kinematics,
                                                                self._vertex_geometry, transposed.transpose(0, 2, 1))))
-        drivers = tuple(function.pointer for function in functions)
+        drivers = tuple(function.address for function in functions)
         return inputs, (drivers[:2], drivers[2:]), np.ascontiguousarray(self._contact_jacobian).ravel()
+
+    @functools.cached_property
+    def at_rest_kernels(self):
+        """What a compiled loop needs to evaluate c(p) and dc/dp at q* without Python (asc's
+        Gauss-Newton loop, solvers.gauss_newton), or None where the stencils are not compiled or
+        bodies support the strand (their forces are added in Python): a tuple (forces arguments
+        after p, Jacobian arguments after p, free index, free rows' scales, (J's CSC indptr and
+        indices, its CSR indptr, indices and value order)). c = at_rest.forces(p, *forces_args)[free]
+        / scales and the CSC values of dc/dp at_rest.jacobian_values(p, *jacobian_args) are what
+        ``residual`` and ``strand_jacobian`` give."""
+        compiled = self._compiled_at_rest
+        if compiled is None or self.contacts.count:
+            return None
+        inputs, (gradients, jacobians), contact = compiled
+        pattern = self._jacobian_pattern
+        return ((*inputs, self.edge_dofs, self.vertex_dofs, self.external_forces, *gradients),
+                (*inputs, contact, *jacobians, *pattern.scatter_plan), self.free_index, self._free_row_scale,
+                (pattern.indptr, pattern.indices, pattern.csr_indptr, pattern.csr_indices, pattern.csr_order))
+
+    def remember_at_rest(self, p, forces: np.ndarray, jacobian_values: np.ndarray) -> None:
+        """Store f(q*, p) and the CSC values of dc/dp at p, computed by a compiled loop from
+        ``at_rest_kernels``, in the memos ``forces`` and ``strand_jacobian`` read (the solver's
+        convergence test and KKT check evaluate its last point again)."""
+        self._by_p("forces", p, lambda: forces, AT_REST_MEMO)
+        self._by_p("jacobian", p, lambda: StrandJacobian(self._jacobian_pattern, jacobian_values), AT_REST_MEMO)
 
     def _strand_jacobian(self, p, q, frames) -> StrandJacobian:
         """``strand_jacobian``, uncached."""

@@ -14,7 +14,9 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     _Model.hessian); each step solves the box QP
     min g^T d + 1/2 d^T H d,  lower - p <= d <= upper - p  by MPRGP, preconditioned by the active-set
     Cholesky and warm-started with the previous step's active bounds, then a nonmonotone Armijo
-    backtracking line search on L (memory NONMONOTONE) keeps p feasible.
+    backtracking line search on L (memory NONMONOTONE) keeps p feasible. The whole inner solve is
+    one compiled call where the model is compiled (solvers.gauss_newton); _inner_solve_python is
+    the same loop step for step, for the rest (no C compiler, strands on bodies).
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
     stiffened where it leaves the boxes (linear_start), with least-squares multipliers. With bodies,
     from p0: the same step with the supports (clipped at zero where it pulled) left the rest shape
@@ -103,18 +105,12 @@ from sagfree.formulation.rest_change import spread_rest_change, stiffest
 from sagfree.linalg.band import column_norms, gram
 from sagfree.linalg.saddle import SaddleFactor, constrained_step
 
-from .mprgp import solve_box_qp
+from . import gauss_newton
+from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, DAMPING, INNER_STEPS, MAX_ITERATIONS,
+                           MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
+from .mprgp import STATUS, solve_box_qp
 from .multipliers import least_squares_multipliers
 
-ARMIJO = 1e-4
-ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
-DAMPING = (1e-13, 1e-11, 1e-9)  # relative Levenberg-Marquardt damping, escalated on breakdown
-NONMONOTONE = 5  # Grippo-Lampariello-Lucidi memory of the line search
-STALL = 3  # accepted Gauss-Newton steps in a row that lower L by less than its rounding end the inner loop
-INNER_STEPS = 30  # Gauss-Newton steps per inner solve (module docstring, Crawl)
-CRAWL_WINDOW = 5  # ... fewer when the last CRAWL_WINDOW steps reduced neither |c|_inf nor pi
-CRAWL_DROP = 0.9  # ... by at least 10%
-CRAWL_NEAR = 100.0  # ... where |c|_inf <= CRAWL_NEAR tol (far from it, the infeasibility test needs the full solve)
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
 MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
 STALLED_VIOLATION = 1e-3  # |c|_inf above which a penalty of 1e4 mu0 hands over to least_residual
@@ -202,77 +198,33 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     previous_violation = np.inf
     at_lower, at_upper = p <= lower, p >= upper
     nearby = None  # the last SQP step's factorization while p is its point (kkt_optimality)
+    compiled = gauss_newton.available(problem)
 
     def finish(status, message):
         return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
 
     while counts["outer"] < max_outer:
         counts["outer"] += 1
-        # ---- inner: Gauss-Newton on the augmented Lagrangian ----
-        recent: list[float] = []
-        stalled = 0
+        # ---- inner: Gauss-Newton on the augmented Lagrangian (compiled where it can be) ----
         steps_before = counts["gauss_newton"]
-        progress: list[tuple[float, float]] = []  # (|c|_inf, pi) before each step of this inner solve
-        while True:
-            gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
-            optimality = scaled_projected_gradient(p, gradient, scale, lower, upper)
-            if optimality <= omega:
-                break
-            if counts["gauss_newton"] - steps_before >= INNER_STEPS:
-                break  # a crawling inner solve: let the outer loop (SQP step or mu) decide
-            progress.append((float(np.abs(c).max(initial=0.0)), optimality))
-            if progress[-1][0] <= CRAWL_NEAR * tol and _crawls(progress):
-                break  # the same, detected sooner near feasibility (module docstring, Crawl)
-            if counts["gauss_newton"] >= max_iterations:
-                return finish("max_iterations", f"stopped after {max_iterations} Gauss-Newton steps "
-                              f"with |c|_inf = {history[-1]:.3g}; raise max_iterations (command line: "
-                              "--option max_iterations=N)")
-            if time.perf_counter() - clock >= max_seconds:
-                return finish("max_iterations", f"stopped after {time.perf_counter() - clock:.3g} s "
-                              f"(max_seconds) and {counts['gauss_newton']} Gauss-Newton steps with "
-                              f"|c|_inf = {history[-1]:.3g}")
-            counts["gauss_newton"] += 1
-            # warm start: the bounds active in the previous step's QP are active again
-            d_lower, d_upper = lower - p, upper - p
-            start_step = _on_previous_bounds(at_lower, at_upper, d_lower, d_upper)
-            for damping in DAMPING:  # escalate only if rounding breaks the factorization
-                qp = solve_box_qp(model.hessian(J, mu, damping), -gradient, d_lower, d_upper,
-                                  x0=start_step, rtol=qp_rtol, preconditioner=preconditioner)
-                if qp.status != "not_positive_definite":
-                    break
-            at_lower, at_upper = qp.x <= d_lower, qp.x >= d_upper
-            for key in ("cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
-                        "factored_rows"):
-                counts[key] += getattr(qp, key)
-            if qp.status not in ("converged", "max_iterations"):
-                return finish("failed", f"the Gauss-Newton QP failed ({qp.status}) at step "
-                              f"{counts['gauss_newton']}")
-            step, slope = qp.x, float(gradient @ qp.x)
-            merit = model.merit(p, c, lam, mu)
-            recent.append(merit)
-            reference = max(recent[-NONMONOTONE:])
-            rounding = ROUNDING * (abs(merit) + model.merit_scale(p, c, lam, mu))
-            if -slope <= rounding:
-                break  # the model predicts no decrease above the rounding of L
-            alpha, accepted = 1.0, False
-            for _ in range(40):
-                counts["line_search"] += 1
-                trial = np.clip(p + alpha * step, lower, upper)
-                c_trial = problem.residual(trial)
-                merit_trial = model.merit(trial, c_trial, lam, mu)
-                if merit_trial <= reference + ARMIJO * alpha * slope + rounding:
-                    accepted = np.all(np.isfinite(c_trial))
-                    break
-                alpha *= 0.5
-            if not accepted:
-                break  # no descent left at this accuracy: let the outer loop decide
-            stalled = stalled + 1 if merit_trial > merit - rounding else 0
-            p, c, nearby = trial, c_trial, None
-            J = problem.strand_jacobian(p)
-            scale = gradient_scale(model.w, J)
-            history.append(float(np.abs(c).max(initial=0.0)))
-            if stalled >= STALL:
-                break  # L no longer decreases above its rounding: let the outer loop decide
+        state = InnerState(p, c, J, scale, at_lower, at_upper)
+        inner = gauss_newton.inner_solve if compiled else _inner_solve_python
+        reason, qp_status, optimality, stalled, moved = inner(
+            problem, model, state, lam, mu, omega, tol, max_iterations, clock + max_seconds, qp_rtol, preconditioner,
+            counts, history)
+        p, c, J, scale, at_lower, at_upper = state.p, state.c, state.J, state.scale, state.at_lower, state.at_upper
+        nearby = None if moved else nearby
+        if reason == MAX_ITERATIONS:
+            return finish("max_iterations", f"stopped after {max_iterations} Gauss-Newton steps "
+                          f"with |c|_inf = {history[-1]:.3g}; raise max_iterations (command line: "
+                          "--option max_iterations=N)")
+        if reason == MAX_SECONDS:
+            return finish("max_iterations", f"stopped after {time.perf_counter() - clock:.3g} s "
+                          f"(max_seconds) and {counts['gauss_newton']} Gauss-Newton steps with "
+                          f"|c|_inf = {history[-1]:.3g}")
+        if reason == QP_FAILED:
+            return finish("failed", f"the Gauss-Newton QP failed ({STATUS[qp_status]}) at step "
+                          f"{counts['gauss_newton']}")
 
         # ---- outer: multipliers, penalty, convergence ----
         violation = float(np.abs(c).max(initial=0.0))
@@ -358,6 +310,86 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         omega = max(target, 0.1 * omega)
     return finish("max_iterations", f"stopped after {max_outer} outer iterations with |c|_inf = "
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer (command line: --option max_outer=N)")
+
+
+def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam, mu: float, omega: float,
+                        tol: float, max_iterations: int, deadline: float, qp_rtol: float, preconditioner: str,
+                        counts: dict, history: list) -> tuple[int, int, float, int, bool]:
+    """solvers.gauss_newton.inner_solve in Python, step for step (the same p, bit for bit): for
+    problems whose model the compiled loop cannot evaluate (stencils not compiled, bodies)."""
+    lower, upper = problem.layout.lower, problem.layout.upper
+    p, c, J, scale = state.p, state.c, state.J, state.scale
+    recent: list[float] = []
+    stalled, moved = 0, False
+    steps_before = counts["gauss_newton"]
+    progress: list[tuple[float, float]] = []  # (|c|_inf, pi) before each step of this inner solve
+    reason, qp_status = TARGET, 0
+    while True:
+        gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
+        optimality = scaled_projected_gradient(p, gradient, scale, lower, upper)
+        if optimality <= omega:
+            reason = TARGET
+            break
+        if counts["gauss_newton"] - steps_before >= INNER_STEPS:
+            reason = CRAWL  # a crawling inner solve: let the outer loop (SQP step or mu) decide
+            break
+        progress.append((float(np.abs(c).max(initial=0.0)), optimality))
+        if progress[-1][0] <= CRAWL_NEAR * tol and _crawls(progress):
+            reason = CRAWL  # the same, detected sooner near feasibility (module docstring, Crawl)
+            break
+        if counts["gauss_newton"] >= max_iterations:
+            reason = MAX_ITERATIONS
+            break
+        if time.perf_counter() >= deadline:
+            reason = MAX_SECONDS
+            break
+        counts["gauss_newton"] += 1
+        # warm start: the bounds active in the previous step's QP are active again
+        d_lower, d_upper = lower - p, upper - p
+        start_step = _on_previous_bounds(state.at_lower, state.at_upper, d_lower, d_upper)
+        for damping in DAMPING:  # escalate only if rounding breaks the factorization
+            qp = solve_box_qp(model.hessian(J, mu, damping), -gradient, d_lower, d_upper,
+                              x0=start_step, rtol=qp_rtol, preconditioner=preconditioner)
+            if qp.status != "not_positive_definite":
+                break
+        state.at_lower, state.at_upper = qp.x <= d_lower, qp.x >= d_upper
+        for key in ("cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
+                    "factored_rows"):
+            counts[key] += getattr(qp, key)
+        if qp.status not in ("converged", "max_iterations"):
+            reason, qp_status = QP_FAILED, next(code for code, name in STATUS.items() if name == qp.status)
+            break
+        step, slope = qp.x, float(gradient @ qp.x)
+        merit = model.merit(p, c, lam, mu)
+        recent.append(merit)
+        reference = max(recent[-NONMONOTONE:])
+        rounding = ROUNDING * (abs(merit) + model.merit_scale(p, c, lam, mu))
+        if -slope <= rounding:
+            reason = NO_PROGRESS  # the model predicts no decrease above the rounding of L
+            break
+        alpha, accepted = 1.0, False
+        for _ in range(40):
+            counts["line_search"] += 1
+            trial = np.clip(p + alpha * step, lower, upper)
+            c_trial = problem.residual(trial)
+            merit_trial = model.merit(trial, c_trial, lam, mu)
+            if merit_trial <= reference + ARMIJO * alpha * slope + rounding:
+                accepted = np.all(np.isfinite(c_trial))
+                break
+            alpha *= 0.5
+        if not accepted:
+            reason = NO_PROGRESS  # no descent left at this accuracy: let the outer loop decide
+            break
+        stalled = stalled + 1 if merit_trial > merit - rounding else 0
+        p, c, moved = trial, c_trial, True
+        J = problem.strand_jacobian(p)
+        scale = gradient_scale(model.w, J)
+        history.append(float(np.abs(c).max(initial=0.0)))
+        if stalled >= STALL:
+            reason = NO_PROGRESS  # L no longer decreases above its rounding: let the outer loop decide
+            break
+    state.p, state.c, state.J, state.scale = p, c, J, scale
+    return reason, qp_status, optimality, stalled, moved
 
 
 def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float, halvings: int = 0):

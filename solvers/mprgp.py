@@ -104,46 +104,64 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
     """
     if preconditioner not in PRECONDITIONERS:
         raise ValueError(f"preconditioner must be one of {tuple(PRECONDITIONERS)}, got {preconditioner!r}")
-    diagonal = np.concatenate([hessian.band[0], np.diagonal(hessian.corner)])
-    if not np.all(diagonal > 0):
-        return QPResult(np.zeros(hessian.size), STATUS[2], 0, 0, 0, 0, 0, float("nan"))
-    s = 1.0 / np.sqrt(diagonal)
-    scaled = _scaled(hessian, s)
-    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
-    sb, sl, su = s * np.asarray(b, dtype=float), lower / s, upper / s  # the scaled QP
-    y = np.clip(np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float) / s, sl, su)
     if active_set_steps is None:
         active_set_steps = ACTIVE_SET_STEPS if hessian.corner.shape[0] == 0 else 0
     counts = np.zeros(8, dtype=np.int64)
-    status, pg, tol = _mprgp(scaled.band, scaled.border, scaled.corner, sb, sl, su, y, rtol, atol, max_iterations,
-                             PRECONDITIONERS[preconditioner], gamma, active_set_steps, WALKING, counts)
-    if STATUS[status] == "walking":
-        z = np.empty_like(y)
-        iterations, factorizations = interior_point(scaled.band, scaled.border, scaled.corner, sb, sl, su, z,
-                                                    INTERIOR_GAP)
-        counts[INTERIOR] += iterations
-        counts[FACTORIZATIONS] += factorizations
-        counts[FACTORED_ROWS] += factorizations * scaled.band.shape[1]
-        z = np.clip(z, sl, su)
-        work = np.empty_like(y)
-        if _objective(scaled.band, scaled.border, scaled.corner, sb, z, work) < _objective(
-                scaled.band, scaled.border, scaled.corner, sb, y, work):
-            y = z
-        # on from the better point (with the prelude: the interior point's bounds are not all
-        # identified), to the first call's tolerance
-        used = int(counts[CG] + counts[EXPANSION] + counts[PROPORTIONING])
-        status, pg, _ = _mprgp(scaled.band, scaled.border, scaled.corner, sb, sl, su, y, 0.0, tol,
-                               max(max_iterations - used, 0), PRECONDITIONERS[preconditioner], gamma,
-                               active_set_steps, np.iinfo(np.int64).max, counts)
-    x = np.clip(s * y, lower, upper)  # exactly on the bound, not one rounding off it
+    x, status, pg = box_qp(hessian.band, hessian.border, hessian.corner, np.asarray(b, dtype=float),
+                           np.asarray(lower, dtype=float), np.asarray(upper, dtype=float),
+                           np.zeros(hessian.size) if x0 is None else np.asarray(x0, dtype=float), rtol, atol,
+                           max_iterations, PRECONDITIONERS[preconditioner], gamma, active_set_steps, WALKING,
+                           counts)
     return QPResult(x, STATUS[status], int(counts[CG]), int(counts[EXPANSION]),
                     int(counts[PROPORTIONING]), int(counts[FACTORIZATIONS]), int(counts[MATVECS]), pg,
                     int(counts[FACTORED_ROWS]), int(counts[ACTIVE_SET]), int(counts[INTERIOR]))
 
 
-def _scaled(hessian: BorderedBand, s: np.ndarray) -> BorderedBand:
-    """S H S for S = diag(s)."""
-    return BorderedBand(*_scale_symmetric(hessian.band, hessian.border, hessian.corner, s))
+@numba.njit(cache=True)
+def box_qp(band, border, corner, b, lower, upper, x0, rtol, atol, max_iterations, precond, gamma,
+           active_set_steps, walking, counts):  # pragma: no cover - compiled
+    """(x, status code, ||g^P||_2) of ``solve_box_qp`` with the preconditioner's code, the
+    active-set steps and the factorizations before the fallback (WALKING) given, its iterations
+    added to ``counts`` (the CG, ... INTERIOR layout): the whole QP in one compiled call, also from
+    asc's compiled Gauss-Newton loop (solvers.gauss_newton)."""
+    n = x0.size
+    nb = band.shape[1]
+    s = np.empty(n)
+    for j in range(n):
+        diagonal = band[0, j] if j < nb else corner[j - nb, j - nb]
+        if not diagonal > 0:
+            return np.zeros(n), 2, np.nan
+        s[j] = 1.0 / np.sqrt(diagonal)
+    scaled_band, scaled_border, scaled_corner = _scale_symmetric(band, border, corner, s)
+    sb, sl, su, y = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for j in range(n):  # the scaled QP
+        sb[j], sl[j], su[j] = s[j] * b[j], lower[j] / s[j], upper[j] / s[j]
+        y[j] = min(max(x0[j] / s[j], sl[j]), su[j])
+    status, pg, tol = _mprgp(scaled_band, scaled_border, scaled_corner, sb, sl, su, y, rtol, atol, max_iterations,
+                             precond, gamma, active_set_steps, walking, counts)
+    if status == 4:  # walking: the interior-point fallback (module docstring)
+        z = np.empty_like(y)
+        iterations, factorizations = interior_point(scaled_band, scaled_border, scaled_corner, sb, sl, su, z,
+                                                    INTERIOR_GAP)
+        counts[INTERIOR] += iterations
+        counts[FACTORIZATIONS] += factorizations
+        counts[FACTORED_ROWS] += factorizations * nb
+        for j in range(n):
+            z[j] = min(max(z[j], sl[j]), su[j])
+        work = np.empty_like(y)
+        if _objective(scaled_band, scaled_border, scaled_corner, sb, z, work) < _objective(
+                scaled_band, scaled_border, scaled_corner, sb, y, work):
+            y = z
+        # on from the better point (with the prelude: the interior point's bounds are not all
+        # identified), to the first call's tolerance
+        used = counts[CG] + counts[EXPANSION] + counts[PROPORTIONING]
+        status, pg, _ = _mprgp(scaled_band, scaled_border, scaled_corner, sb, sl, su, y, 0.0, tol,
+                               max(max_iterations - used, 0), precond, gamma, active_set_steps,
+                               np.iinfo(np.int64).max, counts)
+    x = np.empty(n)
+    for j in range(n):  # exactly on the bound, not one rounding off it
+        x[j] = min(max(s[j] * y[j], lower[j]), upper[j])
+    return x, status, pg
 
 
 @numba.njit(cache=True)

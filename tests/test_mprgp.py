@@ -6,6 +6,7 @@ from scipy.optimize import lsq_linear
 
 import sagfree
 import sagfree.solvers.alm as alm
+import sagfree.solvers.gauss_newton as gauss_newton
 import sagfree.solvers.mprgp as mprgp
 from sagfree.linalg.band import bordered_band, gram, matvec
 from sagfree.linalg.cholesky import factor_active, solve_factored
@@ -135,6 +136,12 @@ def scaled_projected_gradient(H, b, lower, upper, x):
     return float(np.linalg.norm(g / np.sqrt(np.diag(H))))
 
 
+def python_loop(monkeypatch):
+    """asc's Gauss-Newton QPs through alm.solve_box_qp, where a test can capture them: the Python
+    inner loop (the compiled one, step for step the same, calls mprgp.box_qp inside)."""
+    monkeypatch.setattr(gauss_newton, "available", lambda problem: False)
+
+
 def test_active_set_prelude_cuts_the_factorizations_of_groom_gauss_newton_qps(monkeypatch):
     """On the element-stiffness Gauss-Newton QPs of 200-vertex groom strands, the primal-dual
     active-set prelude reaches the KKT point as MPRGP alone does, with fewer factorizations."""
@@ -145,6 +152,7 @@ def test_active_set_prelude_cuts_the_factorizations_of_groom_gauss_newton_qps(mo
         return solve_box_qp(H, b, lower, upper, **options)
 
     monkeypatch.setattr(alm, "solve_box_qp", capture)
+    python_loop(monkeypatch)
     for strand in sagfree.scenes.groom(3, 200, seed=1):
         assert sagfree.solve(sagfree.Problem(strand)).status == "converged"
     banded = [qp for qp in captured if qp[0].corner.shape[0] == 0]
@@ -208,6 +216,7 @@ def test_a_walking_qp_goes_to_the_interior_point_method(monkeypatch):
         return solve_box_qp(H, b, lower, upper, **options)
 
     monkeypatch.setattr(alm, "solve_box_qp", capture)
+    python_loop(monkeypatch)
     with pytest.raises(Captured):
         # solve_alm itself: sagfree.solve would first warm up on a small strand, whose QPs the
         # capture would take instead when this test runs first in its process

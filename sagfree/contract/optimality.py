@@ -29,14 +29,15 @@ REFINED_DISTANCE = 1e-4 * KKT_TOL
 
 def scaled_projected_gradient(p, gradient, scale, lower, upper) -> float:
     """||P(p - gradient / scale) - p||_inf: zero exactly at a KKT point of a box-constrained problem."""
-    return float(_scaled_projected_gradient(np.asarray(p, dtype=float), np.asarray(gradient, dtype=float),
+    return float(scaled_projected_gradient_kernel(np.asarray(p, dtype=float), np.asarray(gradient, dtype=float),
                                             np.asarray(scale, dtype=float), np.asarray(lower, dtype=float),
                                             np.asarray(upper, dtype=float)))
 
 
 @numba.njit(cache=True)
-def _scaled_projected_gradient(p, gradient, scale, lower, upper):  # pragma: no cover - compiled
-    """One pass (asc evaluates it ~20 times per strand; numpy's clip and max cost ~10 us there)."""
+def scaled_projected_gradient_kernel(p, gradient, scale, lower, upper):  # pragma: no cover - compiled
+    """``scaled_projected_gradient`` in one compiled pass, callable from compiled code (asc evaluates
+    it ~20 times per strand; numpy's clip and max cost ~10 us there)."""
     largest = 0.0
     for j in range(p.size):
         target = p[j] - gradient[j] / scale[j]

@@ -117,15 +117,24 @@ def gram(J, diagonal: np.ndarray, scale: float, border: int) -> BorderedBand:
     """diag(diagonal) + scale J^T J as a bordered band, accumulated row by row from J (no sparse
     matrix product): each row of J touches only the parameters of a few neighbouring elements."""
     indptr, indices, data = csr_arrays(J)
-    n = J.shape[1]
-    nb = n - border
+    return BorderedBand(*gram_arrays(indptr, indices, data, np.asarray(diagonal, dtype=float), float(scale),
+                                     border))
+
+
+@numba.njit(cache=True)
+def gram_arrays(indptr, indices, data, diagonal, scale, border):  # pragma: no cover - compiled
+    """(band, border, corner) of ``gram`` from J's compressed rows (sorted indices)."""
+    nb = diagonal.size - border
     width = _row_span(indptr, indices, nb)
     columns = np.zeros((nb, width + 1))  # columns[j, k] = band[k, j]: a row's updates of a column are contiguous
-    columns[:, 0] = diagonal[:nb]
+    for j in range(nb):
+        columns[j, 0] = diagonal[j]
     bord = np.zeros((border, nb))
-    corner = np.diag(diagonal[nb:]).astype(float).reshape(border, border)
+    corner = np.zeros((border, border))
+    for r in range(border):
+        corner[r, r] = diagonal[nb + r]
     _accumulate_gram(indptr, indices, data, nb, scale, columns, bord, corner)
-    return BorderedBand(np.ascontiguousarray(columns.T), bord, corner)
+    return np.ascontiguousarray(columns.T), bord, corner
 
 
 @numba.njit(cache=True)

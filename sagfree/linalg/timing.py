@@ -14,14 +14,23 @@ Numba compiles a kernel the first time a branch runs it (cached on disk afterwar
 first strand through the interior-point fallback paid 7 s for it. Numba announces each compilation
 (its ``numba:compile`` event); the seconds go to ``compile``, out of the category they interrupted,
 and the front end moves them from ``Result.time`` to ``Result.setup_time``.
+
+Compiled loops time their own parts (solvers.gauss_newton) with ``clock_seconds``, the monotonic
+clock of time.perf_counter read through the C library's clock_gettime, and ``add`` the sums.
 """
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import ctypes.util
 import functools
 import time
 
+import numba
 import numba.core.event
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 MODEL, LINEAR_ALGEBRA, COMPILE = "model", "linear_algebra", "compile"
 CATEGORIES = (MODEL, LINEAR_ALGEBRA)
@@ -109,3 +118,45 @@ def split_since(mark: dict[str, float], total: float) -> dict[str, float]:
     (a ``snapshot``); other = total minus the two, never below 0."""
     spent = {name: _seconds[name] - mark[name] for name in CATEGORIES}
     return {**spent, "other": max(0.0, total - sum(spent.values()))}
+
+
+def _monotonic_clock() -> tuple[int, int] | None:
+    """(address of the C library's clock_gettime, time.CLOCK_MONOTONIC), or None without one."""
+    try:
+        function = ctypes.CDLL(ctypes.util.find_library("c") or None).clock_gettime
+        return int(ctypes.cast(function, ctypes.c_void_p).value), time.CLOCK_MONOTONIC
+    except (OSError, AttributeError, TypeError):  # no C library by that name, or no clock_gettime
+        return None
+
+
+#: what ``clock_seconds`` reads in compiled code: (clock_gettime's address, clock id), or None
+CLOCK = _monotonic_clock()
+
+
+def clock_offset() -> float:
+    """time.perf_counter() minus ``clock_seconds``'s reading now: a perf_counter deadline plus the
+    negated offset is a deadline on the compiled clock."""
+    return time.perf_counter() - time.clock_gettime(CLOCK[1])
+
+
+@intrinsic
+def _clock_gettime(typing_context, address, clock_id, timespec):
+    """clock_gettime(clock_id, timespec) through the function at the integer ``address``."""
+    if not all(isinstance(t, types.Integer) for t in (address, clock_id, timespec)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        function_type = ir.FunctionType(ir.IntType(32), [ir.IntType(32), ir.IntType(8).as_pointer()])
+        function = builder.inttoptr(args[0], function_type.as_pointer())
+        clock = context.cast(builder, args[1], signature.args[1], types.int32)
+        return builder.call(function, [clock, builder.inttoptr(args[2], ir.IntType(8).as_pointer())])
+
+    return types.int32(address, clock_id, timespec), codegen
+
+
+@numba.njit(cache=True)
+def clock_seconds(address, clock_id, timespec):  # pragma: no cover - compiled
+    """Seconds on the monotonic clock ``CLOCK`` (address, id), read from compiled code (timespec: an
+    int64 array of 2, overwritten)."""
+    _clock_gettime(address, clock_id, timespec.ctypes.data)
+    return timespec[0] + 1e-9 * timespec[1]

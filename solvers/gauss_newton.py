@@ -1,0 +1,319 @@
+"""asc's inner solve compiled: Gauss-Newton on the augmented Lagrangian with no Python between steps.
+
+One call of ``inner_solve`` runs the inner loop of ``solve_alm`` (alm module docstring, "Inner loop",
+"Crawl", "Stall") from p until it stops: the gradient of L(p) = R(p) + lam^T c(p) + mu/2 |c(p)|^2
+and its scaled projected gradient, the banded Gauss-Newton Hessian diag(w) + mu J^T J (damped as
+alm._Model.hessian says), the box QP (mprgp.box_qp: MPRGP with the active-set Cholesky, warm-started
+on the previous step's bounds), the nonmonotone Armijo line search on L, and c and dc/dp at each
+trial point, evaluated by the same compiled kernels as Problem.residual and Problem.strand_jacobian
+(formulation.at_rest, numba calling the CasADi stencils at their addresses). The
+Python loop in alm (``_inner_solve_python``) does the same in the same order, and stays for
+problems whose model the kernels cannot evaluate (no C compiler, bodies): the two give the same
+p, bit for bit (the merit's sums are numpy's pairwise sums, ``_pairwise_sum``, and the dot
+products the same BLAS ddot), which tests/test_gauss_newton.py checks.
+
+Why: a 100-vertex groom strand takes ~2.6 Gauss-Newton steps per solve, and in Python each step
+paid for ~40 calls between its compiled kernels (QP set-up, Gram assembly, merit, line search,
+memo lookups). Compiled, the groom's strands take ~7% less time in all (benchmarks/RESULTS.md,
+2026-12-03, ninth session): most of a strand's time is outside the inner solves.
+
+The loop reads a monotonic clock (clock_gettime, as time.perf_counter) for ``max_seconds`` and for
+the time split: the model evaluations count as ``model``, the Gram assembly and the QPs as
+``linear_algebra`` (linalg.timing). Where the C library has no clock_gettime, solve_alm keeps the
+Python loop.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from sagfree.contract.optimality import scaled_projected_gradient, scaled_projected_gradient_kernel
+from sagfree.formulation import at_rest
+from sagfree.formulation.jacobian import StrandJacobian, csc_column_norms, csc_rmatvec
+from sagfree.formulation.problem import Problem
+from sagfree.linalg import timing
+from sagfree.linalg.band import gram_arrays
+
+from . import mprgp
+
+# the constants of the inner loop (alm module docstring; alm imports them from here)
+ARMIJO = 1e-4
+ROUNDING = 1e-13  # relative rounding of the merit function: changes below it are noise
+DAMPING = (1e-13, 1e-11, 1e-9)  # relative Levenberg-Marquardt damping, escalated on breakdown
+NONMONOTONE = 5  # Grippo-Lampariello-Lucidi memory of the line search
+STALL = 3  # accepted Gauss-Newton steps in a row that lower L by less than its rounding end the inner loop
+INNER_STEPS = 30  # Gauss-Newton steps per inner solve (alm module docstring, Crawl)
+CRAWL_WINDOW = 5  # ... fewer when the last CRAWL_WINDOW steps reduced neither |c|_inf nor pi
+CRAWL_DROP = 0.9  # ... by at least 10%
+CRAWL_NEAR = 100.0  # ... where |c|_inf <= CRAWL_NEAR tol (far from it, the infeasibility test needs the full solve)
+QP_MAX_ITERATIONS = 10_000  # solve_box_qp's default
+
+# why an inner solve stopped (``inner_solve``): the first three are decided by solve_alm's outer loop
+TARGET, CRAWL, NO_PROGRESS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED = range(6)
+#: solve counters the loop advances, in the order of its counts array
+COUNTED = ("gauss_newton", "line_search", "cg", "expansion", "proportioning", "active_set", "interior",
+           "factorizations", "factored_rows")
+_QP_COUNTS = (mprgp.CG, mprgp.EXPANSION, mprgp.PROPORTIONING, mprgp.ACTIVE_SET, mprgp.INTERIOR,
+              mprgp.FACTORIZATIONS, mprgp.FACTORED_ROWS)  # COUNTED[2:] in mprgp's counts layout
+
+
+def available(problem: Problem) -> bool:
+    """True where ``inner_solve`` can run on ``problem`` (compiled stencils, no bodies, a clock)."""
+    return timing.CLOCK is not None and problem.at_rest_kernels is not None
+
+
+class InnerState:
+    """What an inner solve reads and advances: the point p with c(p), J(p) (a StrandJacobian) and
+    the gradient scale h(p) (contract.optimality.gradient_scale), and the bounds the last QP ended on
+    (the next QP's warm start)."""
+
+    def __init__(self, p, c, J: StrandJacobian, scale, at_lower, at_upper):
+        self.p, self.c, self.J, self.scale = p, c, J, scale
+        self.at_lower, self.at_upper = at_lower, at_upper
+
+
+def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omega: float, tol: float,
+                max_iterations: int, deadline: float, qp_rtol: float, preconditioner: str, counts: dict,
+                history: list) -> tuple[int, int, float, int, bool]:
+    """Run the inner loop from ``state`` (advanced in place) with multipliers lam, penalty mu and
+    target omega; counts (solve_alm's dict) and history (|c|_inf after each accepted step) are
+    extended. Returns (reason, QP status code if it failed, the last scaled projected gradient, the
+    stall count, whether p moved). deadline: time.perf_counter() value at which to stop (max_seconds).
+    """
+    lower, upper = problem.layout.lower, problem.layout.upper
+    # the loop's first test, here: about half of the calls meet the target at once, and this costs
+    # a fifth of the compiled call's overhead (its ~45 arrays to unbox)
+    gradient = model.w * (state.p - model.p0) + state.J.T @ (lam + mu * state.c)
+    optimality = scaled_projected_gradient(state.p, gradient, state.scale, lower, upper)
+    if optimality <= omega:
+        return TARGET, 0, optimality, 0, False
+    forces_args, jacobian_args, free, row_scale, structure = problem.at_rest_kernels
+    border = model.border
+    active_set_steps = mprgp.ACTIVE_SET_STEPS if border == 0 else 0  # solve_box_qp's default
+    totals = np.array([counts[name] for name in COUNTED], dtype=np.int64)
+    seconds = np.zeros(2)
+    steps = np.empty(INNER_STEPS + 1)
+    clock, clock_id = timing.CLOCK
+    deadline -= timing.clock_offset()  # on the loop's clock
+    (reason, qp_status, optimality, stalled, moved, recorded, p, c, f, values, scale) = _inner(
+        forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, model.w, model.p0,
+        lower, upper, *map(np.ascontiguousarray, (state.p, state.c, state.J.data, state.scale, lam)), float(mu),
+        float(omega), float(tol), int(max_iterations), float(deadline), float(qp_rtol),
+        mprgp.PRECONDITIONERS[preconditioner], border, active_set_steps, mprgp.WALKING, state.at_lower,
+        state.at_upper, totals, seconds, steps)
+    timing.add(timing.MODEL, seconds[0])
+    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
+    for name, value in zip(COUNTED, totals.tolist()):
+        counts[name] = value
+    history.extend(steps[:recorded].tolist())
+    if moved:
+        problem.remember_at_rest(p, f, values)
+        state.p, state.c, state.J, state.scale = p, c, problem.strand_jacobian(p), scale
+    return reason, qp_status, optimality, stalled, moved
+
+
+@numba.njit(cache=True)
+def _block_sum(a, start, n):  # pragma: no cover - compiled
+    """numpy's pairwise sum of a block of at most 128 entries: eight running sums, then the rest."""
+    if n < 8:
+        total = 0.0
+        for i in range(start, start + n):
+            total += a[i]
+        return total
+    r0, r1, r2, r3 = a[start], a[start + 1], a[start + 2], a[start + 3]
+    r4, r5, r6, r7 = a[start + 4], a[start + 5], a[start + 6], a[start + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[start + i]
+        r1 += a[start + i + 1]
+        r2 += a[start + i + 2]
+        r3 += a[start + i + 3]
+        r4 += a[start + i + 4]
+        r5 += a[start + i + 5]
+        r6 += a[start + i + 6]
+        r7 += a[start + i + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        total += a[start + i]
+        i += 1
+    return total
+
+
+@numba.njit(cache=True)
+def _pairwise_sum(a):  # pragma: no cover - compiled
+    """np.sum of a contiguous float array, bit for bit: numpy halves a range of more than 128 entries
+    (at a multiple of 8) and adds the halves' sums. Its recursion is unrolled onto a stack here (a
+    cached numba function that calls a recursive one crashed when loaded from the cache)."""
+    starts, sizes, stages = np.empty(64, dtype=np.int64), np.empty(64, dtype=np.int64), np.empty(64, dtype=np.int64)
+    lefts = np.empty(64)
+    starts[0], sizes[0], stages[0] = 0, a.size, 0
+    top, total = 0, 0.0
+    while top >= 0:
+        start, size = starts[top], sizes[top]
+        half = size // 2 - (size // 2) % 8
+        if size <= 128 or stages[top] == 2:
+            value = _block_sum(a, start, size) if size <= 128 else lefts[top] + total
+            top -= 1
+            if top >= 0 and stages[top] == 1:  # a left half: keep it, go on with the right one
+                lefts[top], stages[top] = value, 2
+                top += 1
+                parent_half = sizes[top - 1] // 2 - (sizes[top - 1] // 2) % 8
+                starts[top], sizes[top], stages[top] = starts[top - 1] + parent_half, sizes[top - 1] - parent_half, 0
+            else:  # a right half (its parent adds it next) or the whole range
+                total = value
+        else:  # first visit: the left half
+            stages[top] = 1
+            top += 1
+            starts[top], sizes[top], stages[top] = start, half, 0
+    return total
+
+
+@numba.njit(cache=True)
+def _merit(w, p, p0, c, lam, mu, work):  # pragma: no cover - compiled
+    """(L, the sum of its terms' magnitudes) as alm._Model.merit and merit_scale compute them."""
+    for j in range(p.size):
+        d = p[j] - p0[j]
+        work[j] = w[j] * d * d
+    regularizer = 0.5 * _pairwise_sum(work)
+    squares = 0.5 * mu * np.dot(c, c)
+    return regularizer + np.dot(lam, c) + squares, regularizer + np.dot(np.abs(lam), np.abs(c)) + squares
+
+
+@numba.njit(cache=True)
+def _residual(p, forces_args, free, row_scale):  # pragma: no cover - compiled
+    """(c(p), f(q*, p)) as Problem.residual and Problem.forces give them."""
+    f = at_rest.forces(p, *forces_args)
+    c = np.empty(free.size)
+    for r in range(free.size):
+        c[r] = f[free[r]] / row_scale[r]
+    return c, f
+
+
+@numba.njit(cache=True)
+def _largest_magnitude(c):  # pragma: no cover - compiled
+    """np.abs(c).max(initial=0.0)."""
+    largest = 0.0
+    for value in c:
+        largest = max(largest, abs(value))
+    return largest
+
+
+@numba.njit(cache=True)
+def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, w, p0, lower, upper, p, c,
+           values, scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border,
+           active_set_steps, walking, at_lower, at_upper, counts, seconds, steps):  # pragma: no cover
+    """The loop of ``inner_solve`` (alm._inner_solve_python line by line); counts in COUNTED order,
+    seconds [model, linear algebra] accumulated, steps receives |c|_inf after each accepted step.
+    Returns (reason, QP status, optimality, stalled, moved, steps recorded, p, c, f, values, scale)."""
+    csc_indptr, csc_indices, csr_indptr, csr_indices, csr_order = structure
+    n = p.size
+    buffer = np.zeros(2, dtype=np.int64)
+    work = np.empty(n)
+    recent = np.empty(INNER_STEPS + 1)
+    progress_violation, progress_optimality = np.empty(INNER_STEPS + 1), np.empty(INNER_STEPS + 1)
+    qp_counts = np.zeros(8, dtype=np.int64)
+    f = np.empty(0)
+    steps_before = counts[0]
+    stalled, recorded, tried, moved = 0, 0, 0, False
+    reason, qp_status, optimality = TARGET, 0, np.inf
+    while True:
+        multiplier = np.empty(c.size)
+        for r in range(c.size):
+            multiplier[r] = lam[r] + mu * c[r]
+        pulled = csc_rmatvec(csc_indptr, csc_indices, values, multiplier)
+        gradient = np.empty(n)
+        for j in range(n):
+            gradient[j] = w[j] * (p[j] - p0[j]) + pulled[j]
+        optimality = scaled_projected_gradient_kernel(p, gradient, scale, lower, upper)
+        if optimality <= omega:
+            reason = TARGET
+            break
+        if counts[0] - steps_before >= INNER_STEPS:
+            reason = CRAWL  # a crawling inner solve: the outer loop (SQP step or mu) decides
+            break
+        violation = _largest_magnitude(c)
+        progress_violation[tried], progress_optimality[tried] = violation, optimality
+        tried += 1
+        if (violation <= CRAWL_NEAR * tol and tried > CRAWL_WINDOW
+                and violation > CRAWL_DROP * progress_violation[tried - 1 - CRAWL_WINDOW]
+                and optimality > CRAWL_DROP * progress_optimality[tried - 1 - CRAWL_WINDOW]):
+            reason = CRAWL  # the same, detected sooner near feasibility (alm._crawls)
+            break
+        if counts[0] >= max_iterations:
+            reason = MAX_ITERATIONS
+            break
+        if timing.clock_seconds(clock, clock_id, buffer) >= deadline:
+            reason = MAX_SECONDS
+            break
+        counts[0] += 1
+        # warm start: the bounds active in the previous step's QP are active again
+        d_lower, d_upper, start_step, negative = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        for j in range(n):
+            d_lower[j], d_upper[j] = lower[j] - p[j], upper[j] - p[j]
+            start_step[j] = d_lower[j] if at_lower[j] else (d_upper[j] if at_upper[j] else 0.0)
+            negative[j] = -gradient[j]
+        norms = csc_column_norms(csc_indptr, values)
+        csr_values = values[csr_order]
+        started = timing.clock_seconds(clock, clock_id, buffer)
+        step = np.empty(0)
+        for damping in DAMPING:  # escalate only if rounding breaks the factorization
+            diagonal = np.empty(n)
+            for j in range(n):
+                diagonal[j] = (w[j] + 1e-12) + damping * mu * norms[j]
+            band, band_border, corner = gram_arrays(csr_indptr, csr_indices, csr_values, diagonal, mu, border)
+            qp_counts[:] = 0
+            step, qp_status, _ = mprgp.box_qp(band, band_border, corner, negative, d_lower, d_upper, start_step,
+                                              qp_rtol, 0.0, QP_MAX_ITERATIONS, precond, 1.0, active_set_steps,
+                                              walking, qp_counts)
+            if qp_status != 2:
+                break
+        seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - started
+        for j in range(n):
+            at_lower[j], at_upper[j] = step[j] <= d_lower[j], step[j] >= d_upper[j]
+        for k in range(len(_QP_COUNTS)):
+            counts[2 + k] += qp_counts[_QP_COUNTS[k]]
+        if qp_status != 0 and qp_status != 1:
+            reason = QP_FAILED
+            break
+        slope = np.dot(gradient, step)
+        merit, magnitude = _merit(w, p, p0, c, lam, mu, work)
+        recent[counts[0] - steps_before - 1] = merit
+        first = max(0, counts[0] - steps_before - NONMONOTONE)
+        reference = recent[first:counts[0] - steps_before].max()
+        rounding = ROUNDING * (abs(merit) + magnitude)
+        if -slope <= rounding:
+            reason = NO_PROGRESS  # the model predicts no decrease above the rounding of L
+            break
+        alpha, accepted = 1.0, False
+        trial, c_trial, f_trial, merit_trial = np.empty(n), np.empty(0), np.empty(0), 0.0
+        for _ in range(40):
+            counts[1] += 1
+            for j in range(n):
+                trial[j] = min(max(p[j] + alpha * step[j], lower[j]), upper[j])
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            c_trial, f_trial = _residual(trial, forces_args, free, row_scale)
+            seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
+            merit_trial = _merit(w, trial, p0, c_trial, lam, mu, work)[0]
+            if merit_trial <= reference + ARMIJO * alpha * slope + rounding:
+                accepted = np.all(np.isfinite(c_trial))
+                break
+            alpha *= 0.5
+        if not accepted:
+            reason = NO_PROGRESS  # no descent left at this accuracy: the outer loop decides
+            break
+        stalled = stalled + 1 if merit_trial > merit - rounding else 0
+        p, c, f, moved = trial, c_trial, f_trial, True
+        started = timing.clock_seconds(clock, clock_id, buffer)
+        values = at_rest.jacobian_values(p, *jacobian_args)
+        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
+        norms = csc_column_norms(csc_indptr, values)
+        scale = np.empty(n)
+        for j in range(n):
+            scale[j] = w[j] + norms[j] + 1e-300
+        steps[recorded] = _largest_magnitude(c)
+        recorded += 1
+        if stalled >= STALL:
+            reason = NO_PROGRESS  # L no longer decreases above its rounding: the outer loop decides
+            break
+    return reason, qp_status, optimality, stalled, moved, recorded, p, c, f, values, scale

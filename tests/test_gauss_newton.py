@@ -1,0 +1,87 @@
+"""asc's compiled inner loop (solvers.gauss_newton) against its Python form (alm._inner_solve_python):
+the same steps, so the same p bit for bit, the same counts and history; its stops and its clock."""
+import numpy as np
+import pytest
+
+import sagfree
+from sagfree.formulation.problem import Problem
+from sagfree.linalg import timing
+from sagfree.solvers import alm, gauss_newton
+
+
+def solved_both_ways(monkeypatch, problem, **options):
+    """(compiled, Python) solve_alm results on ``problem``."""
+    assert gauss_newton.available(problem)
+    compiled = alm.solve_alm(problem, **options)
+    with monkeypatch.context() as patch:
+        patch.setattr(gauss_newton, "available", lambda problem: False)
+        python = alm.solve_alm(problem, **options)
+    return compiled, python
+
+
+@pytest.mark.parametrize("strand, options", [
+    (lambda: sagfree.scenes.groom(3, 50, seed=3)[2], {}),
+    (lambda: sagfree.scenes.groom(3, 50, seed=3)[1], {"stiffness": "strand"}),
+    (lambda: sagfree.scenes.groom(2, 3, seed=1)[0], {}),
+    (lambda: sagfree.scenes.curly(n=40), {"curvature": "2d-average"}),
+    (lambda: sagfree.scenes.horizontal(n=50, tip="pinned"), {}),
+    (lambda: sagfree.scenes.cable(n=30), {}),
+], ids=["element", "strand", "three-vertices", "curly-2d", "tip-pinned", "cable"])
+def test_compiled_and_python_inner_loops_take_the_same_steps(monkeypatch, strand, options):
+    problem = Problem(strand(), **options)
+    compiled, python = solved_both_ways(monkeypatch, problem)
+    assert compiled.iterations["gauss_newton"] > 0
+    assert np.array_equal(compiled.p, python.p)
+    assert compiled.iterations == python.iterations
+    assert compiled.history == python.history
+    assert (compiled.status, compiled.message) == (python.status, python.message)
+
+
+def test_the_limits_stop_the_compiled_loop_as_the_python_one(monkeypatch):
+    problem = Problem(sagfree.scenes.groom(1, 50, seed=3)[0])
+    for options, says in [({"max_iterations": 1}, "stopped after 1 Gauss-Newton steps"),
+                          ({"max_seconds": 0.0}, "(max_seconds) and 0 Gauss-Newton steps")]:
+        compiled, python = solved_both_ways(monkeypatch, problem, **options)
+        for result in (compiled, python):
+            assert result.status == "max_iterations" and says in result.message, result.message
+        assert np.array_equal(compiled.p, python.p)
+
+
+def test_the_compiled_loop_counts_its_model_and_linear_algebra_time():
+    problem = Problem(sagfree.scenes.groom(1, 50, seed=3)[0])
+    alm.solve_alm(problem)  # compiled and loaded
+    calls = []
+    inner = gauss_newton._inner
+
+    def recorded(*args):
+        out = inner(*args)
+        calls.append(args[-2].copy())  # the loop's [model, linear algebra] seconds
+        return out
+
+    mark = timing.snapshot()
+    try:
+        gauss_newton._inner = recorded
+        result = alm.solve_alm(problem)
+    finally:
+        gauss_newton._inner = inner
+    spent = timing.split_since(mark, result.time)
+    inside = np.sum(calls, axis=0)
+    assert inside[0] > 0 and inside[1] > 0
+    assert spent["model"] >= inside[0] and spent["linear_algebra"] >= inside[1]
+    assert inside.sum() < result.time
+
+
+def test_the_compiled_clock_is_perf_counters():
+    clock, clock_id = timing.CLOCK
+    buffer = np.zeros(2, dtype=np.int64)
+    before = timing.clock_seconds(clock, clock_id, buffer) + timing.clock_offset()
+    import time
+    now = time.perf_counter()
+    after = timing.clock_seconds(clock, clock_id, buffer) + timing.clock_offset()
+    assert before - 1e-3 <= now <= after + 1e-3
+
+
+@pytest.mark.parametrize("size", [0, 1, 7, 8, 9, 127, 128, 129, 135, 256, 590, 1031, 4097, 70001])
+def test_the_merit_sums_as_numpy_does(size):
+    values = np.random.default_rng(size).standard_normal(size) * 10.0 ** np.random.default_rng(1).integers(-8, 8, size)
+    assert gauss_newton._pairwise_sum(values) == np.sum(values)
