@@ -263,9 +263,11 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
                 diagonal[j] = (w[j] + 1e-12) + damping * mu * norms[j]
             band, band_border, corner = gram_arrays(csr_indptr, csr_indices, csr_values, diagonal, mu, border)
             qp_counts[:] = 0
+            # np.int64: a global int passed on is a literal type, and box_qp (with MPRGP inside) would be
+            # compiled again for it, ~60 s on a cold cache
             step, qp_status, _ = mprgp.box_qp(band, band_border, corner, negative, d_lower, d_upper, start_step,
-                                              qp_rtol, 0.0, QP_MAX_ITERATIONS, precond, 1.0, active_set_steps,
-                                              walking, qp_counts)
+                                              qp_rtol, 0.0, np.int64(QP_MAX_ITERATIONS), precond, 1.0,
+                                              active_set_steps, walking, qp_counts)
             if qp_status != 2:
                 break
         seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - started
