@@ -108,7 +108,7 @@ from sagfree.linalg.saddle import SaddleFactor, constrained_step
 from . import gauss_newton
 from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, DAMPING, INNER_STEPS, MAX_ITERATIONS,
                            MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
-from .mprgp import STATUS, solve_box_qp
+from .mprgp import PRECONDITIONERS, STATUS, solve_box_qp
 from .multipliers import least_squares_multipliers
 
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
@@ -171,6 +171,8 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     clock = time.perf_counter()
     if start not in ("auto", "p0"):
         raise ValueError(f"start must be 'auto' or 'p0', got {start!r}")
+    if preconditioner not in PRECONDITIONERS:
+        raise ValueError(f"preconditioner must be one of {tuple(PRECONDITIONERS)}, got {preconditioner!r}")
     history: list[float] = []
     lower, upper = problem.layout.lower, problem.layout.upper
     model = _Model(problem)

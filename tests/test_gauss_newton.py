@@ -1,5 +1,7 @@
 """asc's compiled inner loop (solvers.gauss_newton) against its Python form (alm._inner_solve_python):
 the same steps, so the same p bit for bit, the same counts and history; its stops and its clock."""
+import time
+
 import numpy as np
 import pytest
 
@@ -75,7 +77,6 @@ def test_the_compiled_clock_is_perf_counters():
     clock, clock_id = timing.CLOCK
     buffer = np.zeros(2, dtype=np.int64)
     before = timing.clock_seconds(clock, clock_id, buffer) + timing.clock_offset()
-    import time
     now = time.perf_counter()
     after = timing.clock_seconds(clock, clock_id, buffer) + timing.clock_offset()
     assert before - 1e-3 <= now <= after + 1e-3
@@ -85,3 +86,8 @@ def test_the_compiled_clock_is_perf_counters():
 def test_the_merit_sums_as_numpy_does(size):
     values = np.random.default_rng(size).standard_normal(size) * 10.0 ** np.random.default_rng(1).integers(-8, 8, size)
     assert gauss_newton._pairwise_sum(values) == np.sum(values)
+
+
+def test_an_unknown_preconditioner_is_refused_by_name():
+    with pytest.raises(ValueError, match="preconditioner must be one of .* got 'ilu'"):
+        alm.solve_alm(Problem(sagfree.scenes.horizontal(8)), preconditioner="ilu")
