@@ -39,6 +39,15 @@ def test_compiled_and_python_inner_loops_take_the_same_steps(monkeypatch, strand
     assert (compiled.status, compiled.message) == (python.status, python.message)
 
 
+def test_the_compiled_loop_takes_the_qps_interior_point_fallback_as_the_python_one(monkeypatch):
+    """Strand 6 of groom(10, 400, seed=1) in strand mode walks its active set (test_mprgp): inside
+    the compiled loop the QP goes to the interior-point method as solve_box_qp does."""
+    problem = Problem(sagfree.scenes.groom(10, 400, seed=1)[6], stiffness="strand")
+    compiled, python = solved_both_ways(monkeypatch, problem)
+    assert compiled.iterations["interior"] > 0
+    assert np.array_equal(compiled.p, python.p) and compiled.iterations == python.iterations
+
+
 def test_the_limits_stop_the_compiled_loop_as_the_python_one(monkeypatch):
     problem = Problem(sagfree.scenes.groom(1, 50, seed=3)[0])
     for options, says in [({"max_iterations": 1}, "stopped after 1 Gauss-Newton steps"),
