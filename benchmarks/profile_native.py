@@ -11,8 +11,8 @@ functions whose own Python and numpy calls cost the most. This is the measure fo
 "no Python on the per-strand path": the compiled share is what an end-to-end compiled loop keeps.
 
 Native unwinding stops the process for every sample, and on some VMs each stop costs milliseconds:
-at 500 samples per second one such VM ran the batch ~120 times slower than unsampled, and the
-split then measures the sampler. So the batch runs once unsampled first, and the report gives
+at 500 samples per second one such VM ran the batch two orders of magnitude slower than
+unsampled, and the split then measures the sampler. So the batch runs once unsampled first, and the report gives
 both wall times and warns when sampling slowed it more than SLOWDOWN times.
 """
 from __future__ import annotations

@@ -375,7 +375,7 @@ class ParameterLayout:
     def element_numbers(self, indices) -> dict[str, np.ndarray]:
         """The entries ``indices`` of p by block (in BLOCKS order), each as the number of the edge or
         vertex that ``locate`` names (0 for the strand multiplier): ``locate`` for many entries at
-        once, without a Python step per entry (a stabilized strand's note names ~90 floors)."""
+        once, without a Python step per entry (a stabilized strand's note names dozens of floors)."""
         names, owner, within = self._owners
         indices = np.asarray(indices, dtype=int).reshape(-1)
         bad = (indices < 0) | (indices >= self.size)

@@ -12,10 +12,10 @@ problems whose model the kernels cannot evaluate (no C compiler, bodies): the tw
 p, bit for bit (the merit's sums are numpy's pairwise sums, ``_pairwise_sum``, and the dot
 products the same BLAS ddot), which tests/test_gauss_newton.py checks.
 
-Why: a 100-vertex groom strand takes ~2.6 Gauss-Newton steps per solve, and in Python each step
-paid for ~40 calls between its compiled kernels (QP set-up, Gram assembly, merit, line search,
-memo lookups). Compiled, the groom's strands take ~7% less time in all (benchmarks/RESULTS.md,
-2026-12-03, ninth session): most of a strand's time is outside the inner solves.
+Why: in Python each Gauss-Newton step paid for dozens of calls between its compiled kernels (QP
+set-up, Gram assembly, merit, line search, memo lookups); compiled, a groom's strands take about a
+tenth less time in all, most of a strand's time being outside the inner solves (measurements in
+benchmarks/RESULTS.md).
 
 The loop reads a monotonic clock (clock_gettime, as time.perf_counter) for ``max_seconds`` and for
 the time split: the model evaluations count as ``model``, the Gram assembly and the QPs as
@@ -53,6 +53,7 @@ TARGET, CRAWL, NO_PROGRESS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED = range(6)
 #: solve counters the loop advances, in the order of its counts array
 COUNTED = ("gauss_newton", "line_search", "cg", "expansion", "proportioning", "active_set", "interior",
            "factorizations", "factored_rows")
+_GAUSS_NEWTON, _LINE_SEARCH = 0, 1  # their places in the counts array
 _QP_COUNTS = (mprgp.CG, mprgp.EXPANSION, mprgp.PROPORTIONING, mprgp.ACTIVE_SET, mprgp.INTERIOR,
               mprgp.FACTORIZATIONS, mprgp.FACTORED_ROWS)  # COUNTED[2:] in mprgp's counts layout
 
@@ -81,8 +82,8 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
     stall count, whether p moved). deadline: time.perf_counter() value at which to stop (max_seconds).
     """
     lower, upper = problem.layout.lower, problem.layout.upper
-    # the loop's first test, here: about half of the calls meet the target at once, and this costs
-    # a fifth of the compiled call's overhead (its ~45 arrays to unbox)
+    # the loop's first test, here: about half of the calls meet the target at once, and this is
+    # cheaper than the compiled call's overhead (unboxing its arrays)
     gradient = model.w * (state.p - model.p0) + state.J.T @ (lam + mu * state.c)
     optimality = scaled_projected_gradient(state.p, gradient, state.scale, lower, upper)
     if optimality <= omega:
@@ -214,7 +215,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
     progress_violation, progress_optimality = np.empty(INNER_STEPS + 1), np.empty(INNER_STEPS + 1)
     qp_counts = np.zeros(8, dtype=np.int64)
     f = np.empty(0)
-    steps_before = counts[0]
+    steps_before = counts[_GAUSS_NEWTON]
     stalled, recorded, tried, moved = 0, 0, 0, False
     reason, qp_status, optimality = TARGET, 0, np.inf
     while True:
@@ -229,7 +230,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
         if optimality <= omega:
             reason = TARGET
             break
-        if counts[0] - steps_before >= INNER_STEPS:
+        if counts[_GAUSS_NEWTON] - steps_before >= INNER_STEPS:
             reason = CRAWL  # a crawling inner solve: the outer loop (SQP step or mu) decides
             break
         violation = _largest_magnitude(c)
@@ -240,13 +241,13 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
                 and optimality > CRAWL_DROP * progress_optimality[tried - 1 - CRAWL_WINDOW]):
             reason = CRAWL  # the same, detected sooner near feasibility (alm._crawls)
             break
-        if counts[0] >= max_iterations:
+        if counts[_GAUSS_NEWTON] >= max_iterations:
             reason = MAX_ITERATIONS
             break
         if timing.clock_seconds(clock, clock_id, buffer) >= deadline:
             reason = MAX_SECONDS
             break
-        counts[0] += 1
+        counts[_GAUSS_NEWTON] += 1
         # warm start: the bounds active in the previous step's QP are active again
         d_lower, d_upper, start_step, negative = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         for j in range(n):
@@ -264,7 +265,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
             band, band_border, corner = gram_arrays(csr_indptr, csr_indices, csr_values, diagonal, mu, border)
             qp_counts[:] = 0
             # np.int64: a global int passed on is a literal type, and box_qp (with MPRGP inside) would be
-            # compiled again for it, ~60 s on a cold cache
+            # compiled a second time for it
             step, qp_status, _ = mprgp.box_qp(band, band_border, corner, negative, d_lower, d_upper, start_step,
                                               qp_rtol, 0.0, np.int64(QP_MAX_ITERATIONS), precond, 1.0,
                                               active_set_steps, walking, qp_counts)
@@ -274,15 +275,15 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
         for j in range(n):
             at_lower[j], at_upper[j] = step[j] <= d_lower[j], step[j] >= d_upper[j]
         for k in range(len(_QP_COUNTS)):
-            counts[2 + k] += qp_counts[_QP_COUNTS[k]]
+            counts[_LINE_SEARCH + 1 + k] += qp_counts[_QP_COUNTS[k]]
         if qp_status != 0 and qp_status != 1:
             reason = QP_FAILED
             break
         slope = np.dot(gradient, step)
         merit, magnitude = _merit(w, p, p0, c, lam, mu, work)
-        recent[counts[0] - steps_before - 1] = merit
-        first = max(0, counts[0] - steps_before - NONMONOTONE)
-        reference = recent[first:counts[0] - steps_before].max()
+        taken = counts[_GAUSS_NEWTON] - steps_before  # steps of this inner solve, this one included
+        recent[taken - 1] = merit
+        reference = recent[max(0, taken - NONMONOTONE):taken].max()
         rounding = ROUNDING * (abs(merit) + magnitude)
         if -slope <= rounding:
             reason = NO_PROGRESS  # the model predicts no decrease above the rounding of L
@@ -290,7 +291,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
         alpha, accepted = 1.0, False
         trial, c_trial, f_trial, merit_trial = np.empty(n), np.empty(0), np.empty(0), 0.0
         for _ in range(40):
-            counts[1] += 1
+            counts[_LINE_SEARCH] += 1
             for j in range(n):
                 trial[j] = min(max(p[j] + alpha * step[j], lower[j]), upper[j])
             started = timing.clock_seconds(clock, clock_id, buffer)
