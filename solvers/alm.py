@@ -108,7 +108,7 @@ from sagfree.linalg.saddle import SaddleFactor, constrained_step
 from . import gauss_newton
 from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, DAMPING, INNER_STEPS, MAX_ITERATIONS,
                            MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
-from .mprgp import PRECONDITIONERS, STATUS, solve_box_qp
+from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
 
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
@@ -225,7 +225,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                           f"(max_seconds) and {counts['gauss_newton']} Gauss-Newton steps with "
                           f"|c|_inf = {history[-1]:.3g}")
         if reason == QP_FAILED:
-            return finish("failed", f"the Gauss-Newton QP failed ({STATUS[qp_status]}) at step "
+            return finish("failed", f"the Gauss-Newton QP failed ({qp_status}) at step "
                           f"{counts['gauss_newton']}")
 
         # ---- outer: multipliers, penalty, convergence ----
@@ -316,7 +316,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
 
 def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam, mu: float, omega: float,
                         tol: float, max_iterations: int, deadline: float, qp_rtol: float, preconditioner: str,
-                        counts: dict, history: list) -> tuple[int, int, float, int, bool]:
+                        counts: dict, history: list) -> tuple[int, str, float, int, bool]:
     """solvers.gauss_newton.inner_solve in Python, step for step (the same p, bit for bit): for
     problems whose model the compiled loop cannot evaluate (stencils not compiled, bodies)."""
     lower, upper = problem.layout.lower, problem.layout.upper
@@ -325,7 +325,7 @@ def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam,
     stalled, moved = 0, False
     steps_before = counts["gauss_newton"]
     progress: list[tuple[float, float]] = []  # (|c|_inf, pi) before each step of this inner solve
-    reason, qp_status = TARGET, 0
+    reason, qp_status = TARGET, ""
     while True:
         gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
         optimality = scaled_projected_gradient(p, gradient, scale, lower, upper)
@@ -359,7 +359,7 @@ def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam,
                     "factored_rows"):
             counts[key] += getattr(qp, key)
         if qp.status not in ("converged", "max_iterations"):
-            reason, qp_status = QP_FAILED, next(code for code, name in STATUS.items() if name == qp.status)
+            reason, qp_status = QP_FAILED, qp.status
             break
         step, slope = qp.x, float(gradient @ qp.x)
         merit = model.merit(p, c, lam, mu)

@@ -75,10 +75,10 @@ class InnerState:
 
 def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omega: float, tol: float,
                 max_iterations: int, deadline: float, qp_rtol: float, preconditioner: str, counts: dict,
-                history: list) -> tuple[int, int, float, int, bool]:
+                history: list) -> tuple[int, str, float, int, bool]:
     """Run the inner loop from ``state`` (advanced in place) with multipliers lam, penalty mu and
     target omega; counts (solve_alm's dict) and history (|c|_inf after each accepted step) are
-    extended. Returns (reason, QP status code if it failed, the last scaled projected gradient, the
+    extended. Returns (reason, the QP's status if it failed (mprgp.STATUS), the last scaled projected gradient, the
     stall count, whether p moved). deadline: time.perf_counter() value at which to stop (max_seconds).
     """
     lower, upper = problem.layout.lower, problem.layout.upper
@@ -87,7 +87,7 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
     gradient = model.w * (state.p - model.p0) + state.J.T @ (lam + mu * state.c)
     optimality = scaled_projected_gradient(state.p, gradient, state.scale, lower, upper)
     if optimality <= omega:
-        return TARGET, 0, optimality, 0, False
+        return TARGET, "", optimality, 0, False
     forces_args, jacobian_args, free, row_scale, structure = problem.at_rest_kernels
     border = model.border
     active_set_steps = mprgp.ACTIVE_SET_STEPS if border == 0 else 0  # solve_box_qp's default
@@ -110,7 +110,7 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
     if moved:
         problem.remember_at_rest(p, f, values)
         state.p, state.c, state.J, state.scale = p, c, problem.strand_jacobian(p), scale
-    return reason, qp_status, optimality, stalled, moved
+    return reason, mprgp.STATUS[qp_status], optimality, stalled, moved
 
 
 @numba.njit(cache=True)
