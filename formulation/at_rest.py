@@ -15,6 +15,10 @@ this module (most of what is left: the two CasADi batches and the scatter). numb
 batch drivers at their addresses (compiled.BatchFunction.address, ``call_driver``). The sums run in the
 order of the numpy form (np.bincount, edges then vertices); only the chain rule's products are
 summed in another order than BLAS's, a rounding difference.
+
+``hessian_band`` is d2E/dq2 at q* for a stressed p (the stability evaluation of every Result and of
+the stabilization's checks): the stencils' full Hessians from their drivers, scattered into band
+storage in the order of Problem.hessian_band's numpy sum, so the band is the same bit for bit.
 """
 from __future__ import annotations
 
@@ -141,3 +145,44 @@ def jacobian_values(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinemati
         entries[k] = value
         k += 1
     return scatter_values(target, source, scale, entries, size)
+
+
+@numba.njit(cache=True)
+def _call4(driver, count, first, second, third, fourth, out):  # pragma: no cover - compiled
+    """The batch driver at address ``driver`` on ``count`` stencils: four inputs, one output."""
+    inputs, outputs = np.empty(4, dtype=np.intp), np.empty(1, dtype=np.intp)
+    inputs[0], inputs[1], inputs[2], inputs[3] = first.ctypes.data, second.ctypes.data, third.ctypes.data, fourth.ctypes.data
+    outputs[0] = out.ctypes.data
+    call_driver(driver, count, inputs.ctypes.data, outputs.ctypes.data)
+
+
+@numba.njit(cache=True)
+def _raveled_blocks(by_stencil, width, entries, k):  # pragma: no cover - compiled
+    """Copy CasADi's column-major (width x width) blocks into ``entries`` from k on, each block in C
+    order (as ``ravel`` of compiled.BatchFunction's (N, width, width) output); returns the next k."""
+    for s in range(by_stencil.shape[0]):
+        for i in range(width):
+            for j in range(width):
+                entries[k] = by_stencil[s, j * width + i]
+                k += 1
+    return k
+
+
+@numba.njit(cache=True)
+def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, reference, vertex_geometry,
+                 edge_hessian, vertex_hessian, target, source, ones, rows, columns):  # pragma: no cover
+    """d2E/dq2 at q* in lower band storage (rows x columns = 4n-1), as Problem.hessian_band sums it: the
+    edge and vertex stencils' full Hessians (edge_hessian / vertex_hessian: their drivers'
+    addresses) scattered by the strand's band plan (target, source, ones: problem._band_scatter)."""
+    edge_physical, vertex_physical = _physical(p, edge_slots, vertex_slots)
+    edges, edge_width = edge_q.shape
+    vertices, vertex_width = vertex_q.shape
+    by_edge = np.empty((edges, edge_width * edge_width))
+    _call(edge_hessian, edges, edge_q, edge_geometry, edge_physical, by_edge)
+    by_vertex = np.empty((vertices, vertex_width * vertex_width))
+    _call4(vertex_hessian, vertices, vertex_q, reference, vertex_geometry, vertex_physical, by_vertex)
+    entries = np.empty(by_edge.size + by_vertex.size)
+    k = _raveled_blocks(by_edge, edge_width, entries, 0)
+    _raveled_blocks(by_vertex, vertex_width, entries, k)
+    return scatter_values(target, source, ones, entries, rows * columns).reshape(rows, columns)
+

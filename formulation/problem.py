@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, principal_band_gather
-from sagfree.linalg.eigen import smallest_eigenpair
+from sagfree.linalg.eigen import scaled_block_eigenpair, smallest_eigenpair
 from sagfree.linalg.timing import MODEL, timed
 
 from . import at_rest, dofs
@@ -400,6 +400,13 @@ class Problem:
         return self._strand_jacobian(p, q, frames)
 
     @functools.cached_property
+    def _slot_arrays(self) -> tuple[tuple, tuple]:
+        """The edge and vertex SlotMaps' ``arrays``, C-contiguous: how compiled kernels map p to the
+        stencils' physical parameters (at_rest)."""
+        return tuple(tuple(np.ascontiguousarray(a) for a in slot_map.arrays)
+                     for slot_map in (self.layout.edge_map, self.layout.vertex_map))
+
+    @functools.cached_property
     def _compiled_at_rest(self):
         """(inputs, (gradient drivers, parameter Jacobian drivers), contact blocks) of the at_rest
         kernels, or None where a stencil function is not compiled (CasADi's virtual machine)."""
@@ -407,11 +414,9 @@ class Problem:
                      self.edge_functions.parameter_jacobian, self.vertex_fixed_functions.parameter_jacobian)
         if not all(function.compiled for function in functions):
             return None
-        slots = [tuple(np.ascontiguousarray(a) for a in slot_map.arrays)
-                 for slot_map in (self.layout.edge_map, self.layout.vertex_map)]
         kinematics, transposed = self.kinematics_at_rest
         # C order throughout: the drivers read the arrays' data as contiguous blocks
-        inputs = (*slots, *(np.ascontiguousarray(a) for a in (self._at_rest[0], self._edge_geometry, kinematics,
+        inputs = (*self._slot_arrays, *(np.ascontiguousarray(a) for a in (self._at_rest[0], self._edge_geometry, kinematics,
                                                                self._vertex_geometry, transposed.transpose(0, 2, 1))))
         drivers = tuple(function.address for function in functions)
         return inputs, (drivers[:2], drivers[2:]), np.ascontiguousarray(self._contact_jacobian).ravel()
@@ -535,9 +540,24 @@ class Problem:
             self._band_scatter = _band_scatter(
                 [self.edge_dofs, self.vertex_dofs], self.q_star.size)
         target, source, ones = self._band_scatter
-        entries = np.concatenate([h.ravel() for _, h in self._hessian_blocks(p, q, frames)])
         size = self.q_star.size
+        compiled = self._compiled_hessian if q is None and frames is None else None
+        if compiled is not None and not np.array_equal(p, self.layout.p0):  # p0: _hessian_blocks' shortcut
+            return at_rest.hessian_band(self.check_parameters(p), *compiled, target, source, ones,
+                                        HALF_BANDWIDTH + 1, size)
+        entries = np.concatenate([h.ravel() for _, h in self._hessian_blocks(p, q, frames)])
         return scatter_values(target, source, ones, entries, (HALF_BANDWIDTH + 1) * size).reshape(-1, size)
+
+    @functools.cached_property
+    def _compiled_hessian(self):
+        """The arguments of at_rest.hessian_band after p and before the scatter (the stencils' inputs
+        at q*, their Hessian drivers), or None where those are not compiled."""
+        functions = (self.edge_functions.hessian, self.vertex_functions.hessian)
+        if not all(function.compiled for function in functions):
+            return None
+        edge_q, vertex_q, reference = self._at_rest
+        return (*self._slot_arrays, edge_q, np.ascontiguousarray(self._edge_geometry), vertex_q, reference,
+                np.ascontiguousarray(self._vertex_geometry), *(function.address for function in functions))
 
     def contact_matrix(self) -> sp.csc_matrix:
         """The supports' part of dc/dp (free DOFs x parameters, constant): each support's direction
@@ -589,9 +609,8 @@ class Problem:
 
     def _stability_of_band(self, full_band: np.ndarray, vector: bool):
         """(lambda, v) or lambda of the mass-normalized free block of a full Hessian band (``stability``)."""
-        band = self.free_band(full_band)
         scale, row_scale, column_scale = self._mass_scaling
-        value, mode = smallest_eigenpair(band * row_scale * column_scale)
+        value, mode = scaled_block_eigenpair(full_band, self._free_gather, scale.size, row_scale, column_scale)
         if not vector:
             return value
         v = np.zeros(self.q_star.size)

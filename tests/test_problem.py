@@ -10,6 +10,7 @@ from sagfree.formulation.curvature import VARIANTS
 from sagfree.formulation.frames import transport_frames
 from sagfree.formulation.verification import (gradient_error, jacobian_error, perturbed_parameters,
                                               verification_strands)
+from sagfree.linalg.eigen import smallest_eigenpair
 
 SCENES = {
     "horizontal": lambda: sagfree.scenes.horizontal(n=30),
@@ -337,6 +338,29 @@ def test_unstressed_hessian_by_the_chain_rule_equals_the_stencils(curvature):
     _, vertex = pb.stencil_inputs(p, None, None)
     assert np.array_equal(pb._hessian_blocks(p, None, None)[1][1], pb.vertex_functions.hessian(*vertex)[0])
 
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_compiled_hessian_band_and_eigenpair_are_the_numpy_sums(variant, rng):
+    """Problem.stability at q* is two compiled calls: the Hessian band from the stencils' drivers
+    (at_rest.hessian_band) and the free block's scaled eigenpair (eigen.scaled_block_eigenpair).
+    They take the numpy path's steps bit for bit: the same band, eigenvalue and mode, for stressed,
+    strongly perturbed (indefinite: the shifted Cholesky) and unstressed parameters."""
+    for strand in verification_strands(seed=4).values():
+        pb = sagfree.Problem(strand, curvature=variant)
+        numpy_path = sagfree.Problem(strand, curvature=variant)
+        numpy_path.__dict__["_compiled_hessian"] = None
+        assert pb._compiled_hessian is not None
+        compressed = pb.p0.copy()
+        compressed[pb.blocks["rest_length"]] = 0.05
+        for p in (perturbed_parameters(pb, rng), compressed, pb.p0):
+            band = pb.hessian_band(p)
+            assert np.array_equal(band, numpy_path.hessian_band(p))
+            scale, row_scale, column_scale = pb._mass_scaling
+            value, mode = smallest_eigenpair(pb.free_band(band) * row_scale * column_scale)
+            compiled_value, compiled_mode = pb.stability(p, vector=True)
+            assert compiled_value == value and np.array_equal(compiled_mode[pb.free_index], mode * scale)
+        assert pb.stability(compressed) < 0
 
 def test_stability_of_the_straight_rest_state():
     """Mass-normalized: omega^2 of the slowest mode, the Euler-Bernoulli cantilever's 1.875^4 E I /

@@ -4,7 +4,9 @@ Problem.stability needs lambda_min of the free-DOF energy Hessian at q* for ever
 banded eigensolver (LAPACK dsbevx through scipy) reduces the band to tridiagonal form in O(n^2 w);
 ARPACK's Lanczos on a banded Cholesky solve is O(n) but pays Python overhead on every iteration.
 Here the Cholesky (cholesky module), its solves and the Lanczos recurrence (with full
-reorthogonalization) are numba-compiled, about four times faster than ARPACK on a 100-vertex strand.
+reorthogonalization) are numba-compiled, about four times faster than ARPACK on a 100-vertex strand,
+and ``scaled_block_eigenpair`` takes the free block of a strand's Hessian band and its mass scaling
+in the same call (no numpy passes over the band in between).
 
 Method: find tau >= 0 such that H + tau I has a Cholesky factor (tau = 0 when H is positive
 definite; otherwise tau grows 10-fold from 1e-14 of the largest entry, so tau is within 10x of
@@ -19,10 +21,12 @@ import functools
 import numba
 import numpy as np
 
-from .cholesky import band_cholesky, plain_solve
+from .cholesky import factor_active, plain_solve
+from .timing import LINEAR_ALGEBRA, timed
 
 TOLERANCE = 1e-10  # relative Ritz residual at which Lanczos stops
 MAX_STEPS = 300
+TINY = float(np.finfo(float).tiny)  # the first shift's floor (a zero band)
 
 
 def smallest_eigenvalue(band: np.ndarray) -> float:
@@ -30,19 +34,61 @@ def smallest_eigenvalue(band: np.ndarray) -> float:
     return smallest_eigenpair(band)[0]
 
 
+@timed(LINEAR_ALGEBRA)
 def smallest_eigenpair(band: np.ndarray) -> tuple[float, np.ndarray]:
     """(lambda_min, its unit eigenvector) of the symmetric matrix in lower band storage."""
     band = np.asarray(band, dtype=float)
     n = band.shape[1]
     if n == 0:
         raise ValueError("the matrix is empty")
-    start = 1e-14 * float(np.abs(band).max(initial=0.0)) + np.finfo(float).tiny
+    return _eigenpair(np.ascontiguousarray(band), _start_vector(n))
+
+
+@timed(LINEAR_ALGEBRA)
+def scaled_block_eigenpair(band: np.ndarray, gather: tuple[np.ndarray, np.ndarray], size: int,
+                           row_scale: np.ndarray, column_scale: np.ndarray) -> tuple[float, np.ndarray]:
+    """``smallest_eigenpair`` of the principal block of ``band`` given by ``gather`` (band.principal_band:
+    ``size`` rows) scaled to S B S: its band times row_scale times column_scale, entry by entry
+    (R[k, j] = s[j + k], C[k, j] = s[j]). One compiled call (Problem.stability: the free DOFs'
+    mass-normalized Hessian)."""
+    target, source = gather
+    return _scaled_block_eigenpair(np.ascontiguousarray(band, dtype=float), target, source, size, row_scale,
+                                   column_scale, _start_vector(size))
+
+
+@numba.njit(cache=True)
+def _scaled_block_eigenpair(band, target, source, size, row_scale, column_scale, v0):  # pragma: no cover
+    rows = band.shape[0]
+    flat, block = band.ravel(), np.zeros(rows * size)
+    for k in range(target.size):
+        block[target[k]] = flat[source[k]]
+    return _eigenpair(block.reshape(rows, size) * row_scale * column_scale, v0)
+
+
+@numba.njit(cache=True)
+def _eigenpair(band, v0):  # pragma: no cover - compiled
+    """``smallest_eigenpair`` of a non-empty C-contiguous band from the start vector v0; NaN (value
+    and vector) for a band with a non-finite entry, which no shift would make definite."""
+    w1, n = band.shape
+    largest = 0.0
+    for k in range(w1):
+        for j in range(n):
+            if not np.isfinite(band[k, j]):
+                return np.nan, np.full(n, np.nan)
+            largest = max(largest, abs(band[k, j]))
+    start = 1e-14 * largest + TINY
     shift = 0.0
-    while (factor := band_cholesky(band, shift)) is None:  # ends: a large shift makes it diagonally dominant
+    shifted = band.copy()
+    factor = np.empty((n, w1))
+    no_border, no_corner, free = np.zeros((0, n)), np.zeros((0, 0)), np.ones(n, dtype=np.bool_)
+    while True:  # ends: a large shift makes it diagonally dominant
+        for j in range(n):
+            shifted[0, j] = band[0, j] + shift
+        if factor_active(shifted, no_border, no_corner, free, factor, no_border, no_corner, 0, 0):
+            break
         shift = max(10.0 * shift, start)
-    v0 = _start_vector(n)
     theta, vector = _largest_inverse_eigenpair(factor, v0, min(MAX_STEPS, n), TOLERANCE)
-    return float(1.0 / theta - shift), vector / np.linalg.norm(vector)
+    return 1.0 / theta - shift, vector / np.sqrt(np.dot(vector, vector))
 
 
 @functools.lru_cache(maxsize=16)
