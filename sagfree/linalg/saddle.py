@@ -11,10 +11,10 @@ import weakref
 
 import numba
 import numpy as np
-import scipy.linalg.lapack
 import scipy.sparse as sp
-import scipy.sparse.linalg  # noqa: F401 - sp.linalg.splu
+from scipy.sparse.linalg import splu
 
+from . import lapack
 from .band import csc_arrays, dense_columns
 from .timing import LINEAR_ALGEBRA, timed
 
@@ -55,15 +55,13 @@ class SaddleFactor:
         self._band = order is not None
         if self._band:
             rows, columns, values = _free_entries(curvature, self.free)
-            self._kept, self._position, self._half, band = _reduced_saddle_band(
-                indptr, indices, data, w, self.free, order[0], rows, columns, values)
-            self._lu, self._pivots, info = scipy.linalg.lapack.dgbtrf(band, self._half, self._half,
-                                                                     overwrite_ab=True)
+            self._kept, self._position, self._half, self._lu, self._pivots, info = _factored_band(
+                lapack.DGBTRF, indptr, indices, data, w, self.free, order[0], rows, columns, values)
             self.singular = info != 0
         else:
             system = _free_system(J, indptr, indices, data, w, self.free, curvature)
             try:
-                self._lu = sp.linalg.splu(system)
+                self._lu = splu(system)
             except RuntimeError:
                 self.singular = True
 
@@ -72,11 +70,9 @@ class SaddleFactor:
         """(d, lam) of [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[gradient_F; c], d = 0 off F."""
         n = self.n
         if self._band:
-            permuted = _permuted_rhs(np.asarray(gradient, dtype=float), np.asarray(c, dtype=float), self._kept,
-                                     self._position)
-            reduced, _ = scipy.linalg.lapack.dgbtrs(self._lu, self._half, self._half, permuted, self._pivots,
-                                                    overwrite_b=True)
-            return _unpermuted(reduced, self._kept, self._position, n, self.rows)
+            return _band_solution(lapack.DGBTRS, self._lu, self._half, self._pivots, self._kept, self._position,
+                                  np.ascontiguousarray(gradient, dtype=float), np.ascontiguousarray(c, dtype=float),
+                                  n, self.rows)
         rhs = -np.concatenate([np.where(self.free, gradient, 0.0), c])
         reduced = self._lu.solve(np.concatenate([rhs[:n][self.free], rhs[n:]]))
         solution = np.zeros(n + self.rows)
@@ -203,6 +199,27 @@ def _remember_arrays(same_arrays, indptr, indices, order):
 
 
 @numba.njit(cache=True)
+def _factored_band(dgbtrf, indptr, indices, data, w, free, position, curvature_rows, curvature_columns,
+                   curvature_values):  # pragma: no cover - compiled
+    """(kept, positions, half-bandwidth, LU factors, pivots, LAPACK info) of the saddle system of
+    the free variables (_reduced_saddle_band), factored by LAPACK's dgbtrf (linalg.lapack)."""
+    kept, reduced, half, band = _reduced_saddle_band(indptr, indices, data, w, free, position, curvature_rows,
+                                                     curvature_columns, curvature_values)
+    pivots = np.empty(band.shape[0], dtype=np.int32)
+    info = lapack.band_lu(dgbtrf, band, half, half, pivots)
+    return kept, reduced, half, band, pivots, info
+
+
+@numba.njit(cache=True)
+def _band_solution(dgbtrs, factors, half, pivots, kept, position, gradient, c, n, rows):  # pragma: no cover
+    """(d, lam) of SaddleFactor.solve from _factored_band's factors: -[gradient; c] permuted into the
+    band order, LAPACK's dgbtrs, and back (d zero off the kept parameters)."""
+    permuted = _permuted_rhs(gradient, c, kept, position)
+    lapack.band_lu_solve(dgbtrs, factors, half, half, pivots, permuted)
+    return _unpermuted(permuted, kept, position, n, rows)
+
+
+@numba.njit(cache=True)
 def _reduced_saddle_band(indptr, indices, data, w, free, position, curvature_rows, curvature_columns,
                          curvature_values):  # pragma: no cover - compiled
     """(kept, positions, half-bandwidth, band) of the saddle system of the free variables: the
@@ -296,7 +313,7 @@ def _saddle_band(indptr, indices, data, w, free, position, size, half, curvature
     """[[W_FF + C_FF, J_F^T], [J_F, 0]] (W = diag(w), C the curvature entries between free variables
     as triplets) in LAPACK general band storage for dgbtrf, its ``size`` unknowns (the free
     parameters and the rows) at ``position`` (-1: left out): entry (i, j) of the permuted system at
-    [2 half + i - j, j], in Fortran order (LAPACK's own, which spares f2py a copy of the band)."""
+    columns[j, 2 half + i - j] (linalg.lapack's layout: LAPACK's Fortran band, column by column)."""
     n = indptr.size - 1
     columns = np.zeros((size, 3 * half + 1))  # columns[j, r] = band[r, j]
     for j in range(n):
@@ -310,7 +327,7 @@ def _saddle_band(indptr, indices, data, w, free, position, size, half, curvature
     for k in range(curvature_values.size):
         pi, pj = position[curvature_rows[k]], position[curvature_columns[k]]
         columns[pj, 2 * half + pi - pj] += curvature_values[k]
-    return columns.T
+    return columns
 
 
 @numba.njit(cache=True)
