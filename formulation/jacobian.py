@@ -15,6 +15,8 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
+from sagfree.linalg.compressed import csc_column_norms, csc_matvec, csc_rmatvec
+
 from .parameters import SlotMap
 
 
@@ -95,7 +97,7 @@ class StrandJacobian:
         self.pattern, self.data, self.shape = pattern, data, pattern.shape
 
     def __matmul__(self, x: np.ndarray) -> np.ndarray:
-        return _csc_matvec(self.pattern.indptr, self.pattern.indices, self.data,
+        return csc_matvec(self.pattern.indptr, self.pattern.indices, self.data,
                            np.ascontiguousarray(x, dtype=float), self.shape[0])
 
     @property
@@ -135,38 +137,4 @@ def scatter_values(target, source, scale, entries, size):  # pragma: no cover - 
     out = np.zeros(size)
     for k in range(target.size):
         out[target[k]] += scale[k] * entries[source[k]]
-    return out
-
-
-@numba.njit(cache=True)
-def _csc_matvec(indptr, indices, data, x, rows):  # pragma: no cover - compiled
-    out = np.zeros(rows)
-    for j in range(indptr.size - 1):
-        xj = x[j]
-        for k in range(indptr[j], indptr[j + 1]):
-            out[indices[k]] += data[k] * xj
-    return out
-
-
-@numba.njit(cache=True)
-def csc_rmatvec(indptr, indices, data, y):  # pragma: no cover - compiled
-    """J^T y for J in compressed columns (indptr, indices, data)."""
-    out = np.zeros(indptr.size - 1)
-    for j in range(indptr.size - 1):
-        s = 0.0
-        for k in range(indptr[j], indptr[j + 1]):
-            s += data[k] * y[indices[k]]
-        out[j] = s
-    return out
-
-
-@numba.njit(cache=True)
-def csc_column_norms(indptr, data):  # pragma: no cover - compiled
-    """||J_{:,j}||^2 per column of J in compressed columns."""
-    out = np.zeros(indptr.size - 1)
-    for j in range(indptr.size - 1):
-        s = 0.0
-        for k in range(indptr[j], indptr[j + 1]):
-            s += data[k] * data[k]
-        out[j] = s
     return out

@@ -29,10 +29,11 @@ import numpy as np
 
 from sagfree.contract.optimality import scaled_projected_gradient, scaled_projected_gradient_kernel
 from sagfree.formulation import at_rest
-from sagfree.formulation.jacobian import StrandJacobian, csc_column_norms, csc_rmatvec
+from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
 from sagfree.linalg.band import gram_arrays
+from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
 
 from . import mprgp
 

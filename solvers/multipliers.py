@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sagfree.linalg.normal import NormalFactor
+from sagfree.linalg.normal import NormalFactor, seminormal_least_squares
+
+#: the shift of A's diagonal (J's rows are unit-free): keeps a rank-deficient J_F from a zero pivot's
+#: division while moving lam by ~1e-14 of its size
+SHIFT = 1e-14
 
 
 def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -> np.ndarray:
@@ -16,9 +20,14 @@ def least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper) -
     equations square J's condition number; the correction brings the multipliers from ~1e-4 to ~1e-8
     (relative) of a QR least-squares solution.
     NaN if A is singular (J_F rank deficient); the caller then keeps its multipliers.
+    Without a dense column, linalg.normal.seminormal_least_squares takes these steps in one compiled
+    call (the same arithmetic); with one, NormalFactor adds it back by Woodbury.
     """
     free = (p > lower) & (p < upper)
-    factor = NormalFactor(J, 1.0 / scale, free, shift=1e-14)
+    lam = seminormal_least_squares(J, regularizer_gradient, scale, free, SHIFT)  # one compiled call
+    if lam is not None:
+        return lam
+    factor = NormalFactor(J, 1.0 / scale, free, shift=SHIFT)  # the strand multiplier's dense column
     if not factor.definite:
         return np.full(J.shape[0], np.nan)
     lam = np.zeros(J.shape[0])

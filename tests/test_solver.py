@@ -275,6 +275,13 @@ def test_least_squares_multipliers_minimize_the_scaled_lagrangian_gradient(dense
     reference = np.linalg.lstsq(A.T, -r, rcond=None)[0]
     assert np.linalg.norm(A.T @ reference + r) > 0.1 * np.linalg.norm(r)  # no exact multipliers
     assert np.allclose(lam, reference, rtol=1e-8, atol=1e-10 * np.abs(reference).max())
+    if not dense_column:  # one compiled call (linalg.normal.seminormal_least_squares): NormalFactor's steps
+        from sagfree.linalg.normal import NormalFactor
+        compressed = sp.csc_matrix(J)  # its products sum in the compiled kernels' order
+        factor, steps = NormalFactor(compressed, 1.0 / scale, free, shift=1e-14), np.zeros(rows)
+        for _ in range(2):
+            steps += factor.solve(-(compressed @ np.where(free, (gradient + compressed.T @ steps) / scale, 0.0)))
+        assert np.array_equal(lam, steps)
 
 
 def test_scaled_projected_gradient_is_the_formula_with_nan_kept(rng):

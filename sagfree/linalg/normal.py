@@ -6,6 +6,7 @@ import numpy as np
 
 from .band import csc_arrays, dense_columns
 from .cholesky import factor_active, solve_factored
+from .compressed import csc_matvec, csc_rmatvec
 from .timing import LINEAR_ALGEBRA, timed
 
 
@@ -56,6 +57,56 @@ class NormalFactor:
         if self._U.shape[1]:
             x -= self._AU @ np.linalg.solve(self._capacitance, self._U.T @ x)
         return x
+
+
+@timed(LINEAR_ALGEBRA)
+def seminormal_least_squares(J, gradient: np.ndarray, scale: np.ndarray, free: np.ndarray,
+                             shift: float) -> np.ndarray | None:
+    """lam minimizing ||(gradient + J^T lam)_F / sqrt(scale_F)||_2 over the columns F of ``free``:
+    the normal equations A lam = -J_F (gradient / scale)_F, A = J_F diag(1 / scale_F) J_F^T + shift I
+    (NormalFactor), then one step of the corrected semi-normal equations, lam += A^-1 (-J_F e_F) with
+    e = (gradient + J^T lam) / scale: solvers.multipliers's steps in one compiled call. NaN if A is
+    not definite; None where a free column of J is dense (NormalFactor's Woodbury path does those)."""
+    indptr, indices, data = csc_arrays(J)
+    return _seminormal_least_squares(indptr, indices, data, J.shape[0], np.ascontiguousarray(gradient, dtype=float),
+                                     np.ascontiguousarray(scale, dtype=float), np.asarray(free, dtype=np.bool_),
+                                     shift, max(50, J.shape[0] // 5))
+
+
+@numba.njit(cache=True)
+def _seminormal_least_squares(indptr, indices, data, rows, gradient, scale, free, shift,
+                              dense_count):  # pragma: no cover - compiled
+    """``seminormal_least_squares``: None where a free column has more than dense_count entries
+    (band.dense_columns)."""
+    n = indptr.size - 1
+    weights = np.empty(n)
+    for j in range(n):
+        if free[j] and indptr[j + 1] - indptr[j] > dense_count:
+            return None
+        weights[j] = 1.0 / scale[j]
+    transposed = np.zeros((rows, _column_span(indptr, indices, free) + 1))  # the band transposed
+    transposed[:, 0] = shift
+    _accumulate_row_gram(indptr, indices, data, weights, free, transposed)
+    band = np.ascontiguousarray(transposed.T)
+    factor = np.empty((rows, band.shape[0]))
+    no_border, no_corner = np.zeros((0, rows)), np.zeros((0, 0))
+    lam = np.zeros(rows)
+    if not factor_active(band, no_border, no_corner, np.ones(rows, dtype=np.bool_), factor, no_border, no_corner, 0,
+                         0):
+        lam[:] = np.nan
+        return lam
+    step, residual = np.empty(rows), np.empty(n)
+    for _ in range(2):  # the solve, then the correction
+        pulled = csc_rmatvec(indptr, indices, data, lam)
+        for j in range(n):
+            residual[j] = (gradient[j] + pulled[j]) / scale[j] if free[j] else 0.0
+        rhs = csc_matvec(indptr, indices, data, residual, rows)
+        for r in range(rows):
+            rhs[r] = -rhs[r]
+        solve_factored(factor, no_border, no_corner, rhs, step)
+        for r in range(rows):
+            lam[r] += step[r]
+    return lam
 
 
 @numba.njit(cache=True)
