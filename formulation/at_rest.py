@@ -52,13 +52,16 @@ def call_driver(typing_context, address, count, inputs, outputs):
 
 
 @numba.njit(cache=True)
-def _call(driver, count, first, second, third, out):  # pragma: no cover - compiled
-    """The batch driver at address ``driver`` (compiled._DRIVER) on ``count`` stencils: three
-    inputs, one output."""
-    inputs, outputs = np.empty(3, dtype=np.intp), np.empty(1, dtype=np.intp)
-    inputs[0], inputs[1], inputs[2] = first.ctypes.data, second.ctypes.data, third.ctypes.data
+def _call(driver, count, inputs, out):  # pragma: no cover - compiled
+    """The batch driver at address ``driver`` (compiled._DRIVER) on ``count`` stencils: the arrays
+    of the tuple ``inputs`` in, one output."""
+    pointers, outputs = np.empty(len(inputs), dtype=np.intp), np.empty(1, dtype=np.intp)
+    k = 0
+    for array in numba.literal_unroll(inputs):
+        pointers[k] = array.ctypes.data
+        k += 1
     outputs[0] = out.ctypes.data
-    call_driver(driver, count, inputs.ctypes.data, outputs.ctypes.data)
+    call_driver(driver, count, pointers.ctypes.data, outputs.ctypes.data)
 
 
 @numba.njit(cache=True)
@@ -90,9 +93,9 @@ def forces(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, verte
     edges, edge_width = edge_q.shape
     vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
     by_edge = np.empty((edges, edge_width))
-    _call(edge_gradient, edges, edge_q, edge_geometry, edge_physical, by_edge)
+    _call(edge_gradient, edges, (edge_q, edge_geometry, edge_physical), by_edge)
     by_kinematics = np.empty((vertices, kinematics_size))
-    _call(vertex_gradient, vertices, kinematics, vertex_geometry, vertex_physical, by_kinematics)
+    _call(vertex_gradient, vertices, (kinematics, vertex_geometry, vertex_physical), by_kinematics)
     size = external.size
     edge_sum, vertex_sum = np.zeros(size), np.zeros(size)
     for s in range(edges):
@@ -123,9 +126,9 @@ def jacobian_values(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinemati
     vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
     vertex_columns = vertex_physical.shape[1]
     by_edge = np.empty((edges, edge_width * edge_columns))  # CasADi's column-major blocks
-    _call(edge_jacobian, edges, edge_q, edge_geometry, edge_physical, by_edge)
+    _call(edge_jacobian, edges, (edge_q, edge_geometry, edge_physical), by_edge)
     by_kinematics = np.empty((vertices, kinematics_size * vertex_columns))
-    _call(vertex_jacobian, vertices, kinematics, vertex_geometry, vertex_physical, by_kinematics)
+    _call(vertex_jacobian, vertices, (kinematics, vertex_geometry, vertex_physical), by_kinematics)
     entries = np.empty(edges * edge_width * edge_columns + vertices * vertex_width * vertex_columns
                        + contact_jacobian.size)
     k = 0
@@ -145,15 +148,6 @@ def jacobian_values(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinemati
         entries[k] = value
         k += 1
     return scatter_values(target, source, scale, entries, size)
-
-
-@numba.njit(cache=True)
-def _call4(driver, count, first, second, third, fourth, out):  # pragma: no cover - compiled
-    """The batch driver at address ``driver`` on ``count`` stencils: four inputs, one output."""
-    inputs, outputs = np.empty(4, dtype=np.intp), np.empty(1, dtype=np.intp)
-    inputs[0], inputs[1], inputs[2], inputs[3] = first.ctypes.data, second.ctypes.data, third.ctypes.data, fourth.ctypes.data
-    outputs[0] = out.ctypes.data
-    call_driver(driver, count, inputs.ctypes.data, outputs.ctypes.data)
 
 
 @numba.njit(cache=True)
@@ -178,9 +172,9 @@ def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, r
     edges, edge_width = edge_q.shape
     vertices, vertex_width = vertex_q.shape
     by_edge = np.empty((edges, edge_width * edge_width))
-    _call(edge_hessian, edges, edge_q, edge_geometry, edge_physical, by_edge)
+    _call(edge_hessian, edges, (edge_q, edge_geometry, edge_physical), by_edge)
     by_vertex = np.empty((vertices, vertex_width * vertex_width))
-    _call4(vertex_hessian, vertices, vertex_q, reference, vertex_geometry, vertex_physical, by_vertex)
+    _call(vertex_hessian, vertices, (vertex_q, reference, vertex_geometry, vertex_physical), by_vertex)
     entries = np.empty(by_edge.size + by_vertex.size)
     k = _raveled_blocks(by_edge, edge_width, entries, 0)
     _raveled_blocks(by_vertex, vertex_width, entries, k)

@@ -416,8 +416,8 @@ class Problem:
             return None
         kinematics, transposed = self.kinematics_at_rest
         # C order throughout: the drivers read the arrays' data as contiguous blocks
-        inputs = (*self._slot_arrays, *(np.ascontiguousarray(a) for a in (self._at_rest[0], self._edge_geometry, kinematics,
-                                                               self._vertex_geometry, transposed.transpose(0, 2, 1))))
+        inputs = (*self._slot_arrays, *(np.ascontiguousarray(a) for a in (
+            self._at_rest[0], self._edge_geometry, kinematics, self._vertex_geometry, transposed.transpose(0, 2, 1))))
         drivers = tuple(function.address for function in functions)
         return inputs, (drivers[:2], drivers[2:]), np.ascontiguousarray(self._contact_jacobian).ravel()
 
@@ -534,7 +534,9 @@ class Problem:
     def hessian_band(self, p, q=None, frames: Frames | None = None) -> np.ndarray:
         """d2E/dq2 in LAPACK lower band storage: band[k, j] = H[j + k, j], k = 0..10.
 
-        Summed from the stencil Hessians in O(n); ``free_band`` extracts the free block.
+        Summed from the stencil Hessians in O(n); ``free_band`` extracts the free block. At q* off p0
+        (every stability evaluation of a solution) one compiled call, at_rest.hessian_band, with the
+        same sums.
         """
         if self._band_scatter is None:
             self._band_scatter = _band_scatter(
