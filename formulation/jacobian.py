@@ -25,9 +25,11 @@ _STRUCTURES: dict = {}
 
 
 def _structure(free_row, n_rows, n_parameters, stencils):
-    """(target, source, CSC indices and indptr, CSR indptr, indices and order) of the pattern: value
-    entry target[k] sums the flattened stencil Jacobian entry source[k]."""
-    rows, cols, sources, offset = [], [], [], 0
+    """(target, source, CSC indices and indptr, CSR indptr, indices and order, (coefficient, DOF)
+    of each source) of the pattern: value entry target[k] sums the flattened stencil Jacobian entry
+    source[k], whose slot's coefficient is entry coefficient[k] of the stencil kinds' raveled
+    coefficients and whose row is DOF dof[k] (JacobianPattern's scale)."""
+    rows, cols, sources, coefficients, dofs, offset, coefficient_offset = [], [], [], [], [], 0, 0
     for dof_index, slots in stencils:
         count, width = dof_index.shape
         shape = (count, width, slots.index.shape[1])
@@ -37,7 +39,11 @@ def _structure(free_row, n_rows, n_parameters, stencils):
         rows.append(row[keep])
         cols.append(col[keep])
         sources.append(offset + np.flatnonzero(keep.ravel()))
+        stencil, _, slot = np.nonzero(keep)
+        coefficients.append(coefficient_offset + stencil * shape[2] + slot)
+        dofs.append(np.broadcast_to(dof_index[:, :, None], shape)[keep])
         offset += keep.size
+        coefficient_offset += count * shape[2]
     rows, cols = np.concatenate(rows), np.concatenate(cols)
     keys = cols.astype(np.int64) * n_rows + rows
     unique, target = np.unique(keys, return_inverse=True)
@@ -48,7 +54,8 @@ def _structure(free_row, n_rows, n_parameters, stencils):
                           shape=(n_rows, n_parameters)).tocsr()
     order.sort_indices()
     return (target.astype(np.int64), np.concatenate(sources), indices, indptr, order.indptr.astype(np.int64),
-            order.indices.astype(np.int64), order.data.astype(np.int64))
+            order.indices.astype(np.int64), order.data.astype(np.int64),
+            (np.concatenate(coefficients).astype(np.int64), np.concatenate(dofs).astype(np.int64)))
 
 
 class JacobianPattern:
@@ -74,9 +81,10 @@ class JacobianPattern:
                 _STRUCTURES.pop(next(iter(_STRUCTURES)))
             _STRUCTURES[key] = structure
         (self._target, self._source, self.indices, self.indptr, self.csr_indptr, self.csr_indices,
-         self.csr_order) = structure
-        self._scale = np.concatenate([(slots.coefficient[:, None, :] / -row_scale[ix][:, :, None]).ravel()
-                                      for ix, slots in stencils])[self._source]
+         self.csr_order, (coefficient, dof)) = structure
+        # scale_k = coefficient / -D of source k's slot and row, gathered only where J has entries
+        coefficients = np.concatenate([slots.coefficient.ravel() for _, slots in stencils])
+        self._scale = coefficients[coefficient] / -row_scale[dof]
 
     def values(self, *stencil_jacobians: np.ndarray) -> np.ndarray:
         """CSC values of dc/dp from the stencil kinds' parameter Jacobians (in constructor order)."""
