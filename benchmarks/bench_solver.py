@@ -28,13 +28,12 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
 import sagfree
+from revisions import installed_revision  # benchmarks/revisions.py
 
 PREDECESSOR_SECONDS = 11.2  # Takahashi & Batty (CGF), 1.9K strands x 100 vertices
 
@@ -70,37 +69,24 @@ print(json.dumps(dict(wall=wall, code=sagfree.solvers.__file__, strands=len(resu
 
 
 class RevisionRunner:
-    """The groom measurement of ``_GROOM_SCRIPT`` by the code at git ``revision``: a temporary
-    worktree, installed by pip into a folder of its own that each run's PYTHONPATH puts first (a
+    """The groom measurement of ``_GROOM_SCRIPT`` by the code at git ``revision``, installed apart
+    (benchmarks/revisions.py) and run in a subprocess whose PYTHONPATH puts that install first (a
     context manager; ``run()`` once per measurement). ``available`` is False outside a git
-    checkout or where pip cannot install the revision.
-
-    Installed, not run from the worktree: with PYTHONPATH=worktree, ``sagfree`` came from the
-    worktree but its subpackages (folders beside sagfree/ in the source tree) from the editable
-    install of this checkout, so "before" mixed the two revisions' code."""
+    checkout or where pip cannot install the revision."""
 
     def __init__(self, revision: str, strands: int, vertices: int, jobs: int):
         self.revision, self.arguments = revision, [str(strands), str(vertices), str(jobs)]
-        self.root = Path(__file__).resolve().parents[1]
-        self.available = bool(revision) and (self.root / ".git").exists()
+        self._installed = installed_revision(revision)
 
     def __enter__(self) -> "RevisionRunner":
-        if not self.available:
-            return self
-        self._where = tempfile.TemporaryDirectory(prefix="sagfree-before-")
-        self.checkout, self.site = Path(self._where.name) / "src", Path(self._where.name) / "site"
-        subprocess.run(["git", "-C", str(self.root), "worktree", "add", "--detach", "-q", str(self.checkout),
-                        self.revision], check=True)
-        installed = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target",
-                                    str(self.site), str(self.checkout)], capture_output=True, text=True)
-        if installed.returncode != 0:  # e.g. no network for pip's build isolation
-            reason = (installed.stderr.strip().splitlines() or ["no message"])[-1]
-            print(f"(no `before` row: pip could not install {self.revision}: {reason})")
-            self.available = False
+        self.site = self._installed.__enter__()
+        self.available = self.site is not None
+        if not self.available and self.revision:
+            print(f"(no `before` row for {self.revision})")
         return self
 
     def run(self) -> dict:
-        out = subprocess.run([sys.executable, "-c", _GROOM_SCRIPT, *self.arguments], cwd=self._where.name,
+        out = subprocess.run([sys.executable, "-c", _GROOM_SCRIPT, *self.arguments], cwd=self.site.parent,
                              env={**os.environ, "PYTHONPATH": str(self.site)}, check=True, capture_output=True,
                              text=True).stdout
         measured = json.loads(out.strip().splitlines()[-1])
@@ -109,10 +95,7 @@ class RevisionRunner:
         return measured
 
     def __exit__(self, *exc) -> None:
-        if hasattr(self, "_where"):
-            subprocess.run(["git", "-C", str(self.root), "worktree", "remove", "--force", str(self.checkout)],
-                           check=False)
-            self._where.cleanup()
+        self._installed.__exit__(*exc)
 
 
 def groom_table(strands: int, vertices: int, jobs: int, before: str, repeats: int) -> None:
