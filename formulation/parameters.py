@@ -46,7 +46,7 @@ block's size; absolute values, so p0 must lie inside), plus ``curvature_budget``
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -164,6 +164,7 @@ class _LayoutStructure:
     size: int
     edge_index: np.ndarray    # (n - 1, 2)
     vertex_index: np.ndarray  # (n - 2, 7)
+    concatenated: dict = field(default_factory=dict, compare=False)  # ParameterLayout.concatenated_blocks
 
 
 @functools.lru_cache(maxsize=16)
@@ -258,6 +259,7 @@ class ParameterLayout:
         structure = _layout_structure(n_vertices, active, strand_level, couple_twist, self.contacts.tobytes(),
                                       int(contact_width))
         self.blocks, self.size = dict(structure.blocks), structure.size
+        self._structure = structure
 
         # ---- p0, default box, weights ----
         lengths = np.asarray(edge_lengths, dtype=float)
@@ -360,6 +362,21 @@ class ParameterLayout:
             if name in self.blocks:
                 mask[self.blocks[name]] = True
         return mask
+
+    def concatenated_blocks(self, names) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+        """(the named blocks present, their entries' indices in p concatenated in that order, the
+        offset of each block in them: len + 1 entries), shared by the layouts of one structure (every
+        Result's summaries ask for the same few)."""
+        names = tuple(names)
+        if names not in self._structure.concatenated:
+            present = tuple(name for name in names if name in self.blocks)
+            parts = [self.blocks[name] for name in present]
+            offsets = np.zeros(len(parts) + 1, dtype=np.int64)
+            offsets[1:] = np.cumsum([part.size for part in parts])
+            index = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+            index.flags.writeable = offsets.flags.writeable = False
+            self._structure.concatenated[names] = (present, index, offsets)
+        return self._structure.concatenated[names]
 
     def locate(self, index: int) -> tuple[str, str]:
         """(block, element) of entry ``index`` of p, e.g. ("bend_stiffness", "vertex 3")."""

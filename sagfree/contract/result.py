@@ -94,16 +94,27 @@ class Result:
 
 def max_vertex_force(problem: Problem, p: np.ndarray) -> float:
     """Largest norm of the residual force on a free vertex position, N."""
-    f = problem.forces(p)
-    index = dofs.position_index(problem.n_vertices)
-    free = problem.free[index].all(axis=1)
-    return float(np.linalg.norm(f[index[free]], axis=1).max(initial=0.0))
+    return float(_largest_vertex_force(problem.forces(p), dofs.position_index(problem.n_vertices), problem.free))
+
+
+@numba.njit(cache=True)
+def _largest_vertex_force(f, positions, free):  # pragma: no cover - compiled
+    """max over the vertices whose three positions are free of |f| on them, 0 if none, NaN if a
+    norm is NaN: np.linalg.norm(axis=1).max(initial=0.0) in one pass (the same sums)."""
+    largest = 0.0
+    for i in range(positions.shape[0]):
+        a, b, c = positions[i, 0], positions[i, 1], positions[i, 2]
+        if free[a] and free[b] and free[c]:
+            norm = np.sqrt(f[a] * f[a] + f[b] * f[b] + f[c] * f[c])
+            if not norm <= largest:  # larger, or NaN: kept from then on
+                largest = norm if largest == largest else largest
+    return largest
 
 
 def stiffening_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
     """Per stiffness block: the largest and mean multiplier over its specified value, and the share
     of its elements above STIFFENED."""
-    names, index, offsets = _blocks_of(problem, (*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    names, index, offsets = problem.layout.concatenated_blocks((*STIFFNESS_BLOCKS, STRAND_BLOCK))
     ratio = p[index] / problem.layout.p0[index]
     statistics = _block_statistics(ratio, ratio, offsets, STIFFENED)
     return {name: {"max": row[0], "mean": row[1], "stiffened": row[2]}
@@ -113,21 +124,12 @@ def stiffening_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, f
 def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
     """Per rest block: the largest and mean absolute change from p0, and the largest change over
     the box's half-width (the wider side)."""
-    names, index, offsets = _blocks_of(problem, REST_BLOCKS)
+    names, index, offsets = problem.layout.concatenated_blocks(REST_BLOCKS)
     p0, lower, upper = problem.layout.p0[index], problem.layout.lower[index], problem.layout.upper[index]
     change = np.abs(p[index] - p0)
     half_box = np.maximum(upper - p0, p0 - lower)
     statistics = _block_statistics(change, change / np.where(half_box > 0, half_box, 1.0), offsets, np.inf)
     return {name: {"max": row[0], "mean": row[1], "box": row[3]} for name, row in zip(names, statistics.tolist())}
-
-
-def _blocks_of(problem: Problem, blocks) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """(names, their indices concatenated, offsets of each block in them) of the blocks present."""
-    names = [block for block in blocks if block in problem.blocks]
-    parts = [problem.blocks[name] for name in names]
-    offsets = np.zeros(len(parts) + 1, dtype=np.int64)
-    offsets[1:] = np.cumsum([part.size for part in parts])
-    return names, (np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)), offsets
 
 
 @numba.njit(cache=True)
