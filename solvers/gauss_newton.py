@@ -27,7 +27,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sagfree.contract.optimality import scaled_projected_gradient, scaled_projected_gradient_kernel
+from sagfree.contract.optimality import scaled_projected_gradient_kernel
 from sagfree.formulation import at_rest
 from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.problem import Problem
@@ -83,10 +83,12 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
     stall count, whether p moved). deadline: time.perf_counter() value at which to stop (max_seconds).
     """
     lower, upper = problem.layout.lower, problem.layout.upper
-    # the loop's first test, here: about half of the calls meet the target at once, and this is
-    # cheaper than the compiled call's overhead (unboxing its arrays)
-    gradient = model.w * (state.p - model.p0) + state.J.T @ (lam + mu * state.c)
-    optimality = scaled_projected_gradient(state.p, gradient, state.scale, lower, upper)
+    # the loop's first test, here: about half of the calls meet the target at once, and this small
+    # call is cheaper than the loop's (unboxing its arrays)
+    indptr, indices, data = state.J.csc()
+    p, c, scale, lam = (np.ascontiguousarray(a, dtype=float) for a in (state.p, state.c, state.scale, lam))
+    optimality = _lagrangian_optimality(model.w, p, model.p0, indptr, indices, data, lam, float(mu), c, scale,
+                                        lower, upper)[0]
     if optimality <= omega:
         return TARGET, "", optimality, 0, False
     forces_args, jacobian_args, free, row_scale, structure = problem.at_rest_kernels
@@ -202,6 +204,20 @@ def _largest_magnitude(c):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _lagrangian_optimality(w, p, p0, indptr, indices, data, lam, mu, c, scale, lower, upper):  # pragma: no cover
+    """(scaled projected gradient, gradient) of the augmented Lagrangian at p: gradient = w (p - p0)
+    + J^T (lam + mu c), J in compressed columns; the inner loop's stopping test."""
+    multiplier = np.empty(c.size)
+    for r in range(c.size):
+        multiplier[r] = lam[r] + mu * c[r]
+    pulled = csc_rmatvec(indptr, indices, data, multiplier)
+    gradient = np.empty(p.size)
+    for j in range(p.size):
+        gradient[j] = w[j] * (p[j] - p0[j]) + pulled[j]
+    return scaled_projected_gradient_kernel(p, gradient, scale, lower, upper), gradient
+
+
+@numba.njit(cache=True)
 def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, w, p0, lower, upper, p, c,
            values, scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border,
            active_set_steps, walking, at_lower, at_upper, counts, seconds, steps):  # pragma: no cover
@@ -220,14 +236,8 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
     stalled, recorded, tried, moved = 0, 0, 0, False
     reason, qp_status, optimality = TARGET, 0, np.inf
     while True:
-        multiplier = np.empty(c.size)
-        for r in range(c.size):
-            multiplier[r] = lam[r] + mu * c[r]
-        pulled = csc_rmatvec(csc_indptr, csc_indices, values, multiplier)
-        gradient = np.empty(n)
-        for j in range(n):
-            gradient[j] = w[j] * (p[j] - p0[j]) + pulled[j]
-        optimality = scaled_projected_gradient_kernel(p, gradient, scale, lower, upper)
+        optimality, gradient = _lagrangian_optimality(w, p, p0, csc_indptr, csc_indices, values, lam, mu, c, scale,
+                                                      lower, upper)
         if optimality <= omega:
             reason = TARGET
             break
