@@ -6,8 +6,7 @@ import numpy as np
 
 from sagfree.linalg.normal import NormalFactor, seminormal_least_squares
 
-#: the shift of A's diagonal (J's rows are unit-free): keeps a rank-deficient J_F from a zero pivot's
-#: division while moving lam by ~1e-14 of its size
+#: the shift added to A's diagonal (NormalFactor's ``shift``)
 SHIFT = 1e-14
 
 

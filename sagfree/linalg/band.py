@@ -195,7 +195,12 @@ def csc_arrays(J) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def dense_columns(indptr: np.ndarray, rows: int) -> np.ndarray:
     """Columns that fill most rows (the strand multiplier of ``stiffness="strand"``): in a band they
     would fill it, so the banded factorizations keep them apart."""
-    return np.diff(indptr) > max(50, rows // 5)
+    return np.diff(indptr) > dense_count(rows)
+
+
+def dense_count(rows: int) -> int:
+    """Entries of a column of ``rows`` rows above which ``dense_columns`` counts it dense."""
+    return max(50, rows // 5)
 
 
 def column_norms(J) -> np.ndarray:

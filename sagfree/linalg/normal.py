@@ -4,7 +4,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .band import csc_arrays, dense_columns
+from .band import csc_arrays, dense_columns, dense_count
 from .cholesky import factor_active, solve_factored
 from .compressed import csc_matvec, csc_rmatvec
 from .timing import LINEAR_ALGEBRA, timed
@@ -70,18 +70,18 @@ def seminormal_least_squares(J, gradient: np.ndarray, scale: np.ndarray, free: n
     indptr, indices, data = csc_arrays(J)
     return _seminormal_least_squares(indptr, indices, data, J.shape[0], np.ascontiguousarray(gradient, dtype=float),
                                      np.ascontiguousarray(scale, dtype=float), np.asarray(free, dtype=np.bool_),
-                                     shift, max(50, J.shape[0] // 5))
+                                     shift, dense_count(J.shape[0]))
 
 
 @numba.njit(cache=True)
 def _seminormal_least_squares(indptr, indices, data, rows, gradient, scale, free, shift,
-                              dense_count):  # pragma: no cover - compiled
-    """``seminormal_least_squares``: None where a free column has more than dense_count entries
-    (band.dense_columns)."""
+                              dense_entries):  # pragma: no cover - compiled
+    """``seminormal_least_squares``: None where a free column has more than dense_entries entries
+    (band.dense_count)."""
     n = indptr.size - 1
     weights = np.empty(n)
     for j in range(n):
-        if free[j] and indptr[j + 1] - indptr[j] > dense_count:
+        if free[j] and indptr[j + 1] - indptr[j] > dense_entries:
             return None
         weights[j] = 1.0 / scale[j]
     transposed = np.zeros((rows, _column_span(indptr, indices, free) + 1))  # the band transposed
