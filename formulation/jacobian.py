@@ -106,7 +106,7 @@ class StrandJacobian:
 
     def __matmul__(self, x: np.ndarray) -> np.ndarray:
         return csc_matvec(self.pattern.indptr, self.pattern.indices, self.data,
-                           np.ascontiguousarray(x, dtype=float), self.shape[0])
+                          np.ascontiguousarray(x, dtype=float), self.shape[0])
 
     @property
     def T(self) -> "_Transposed":
