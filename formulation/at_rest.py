@@ -180,3 +180,37 @@ def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, r
     _raveled_blocks(by_vertex, vertex_width, entries, k)
     return scatter_values(target, source, ones, entries, rows * columns).reshape(rows, columns)
 
+
+
+@numba.njit(cache=True)
+def unstressed_form(v, p0, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry,
+                    kinematics_jacobian, edge_dofs, vertex_dofs, edge_hessian, vertex_hessian):  # pragma: no cover
+    """v^T H(p0) v at q* summed over the stencils without assembling H (Problem._unstressed_form):
+    the edge stencils' v_s^T H_s v_s, and the vertex stencils' u^T d2E/dk2 u with u = dk/dy v_s
+    (dE/dk = 0 at p0); edge_hessian / vertex_hessian: the drivers of the edge Hessian and of the
+    vertex kinematics Hessian (compiled.BatchFunction.address). Summed stencil by stencil, in
+    another order than numpy's pairwise sums: its caller only bounds an eigenvalue with it."""
+    edge_physical, vertex_physical = _physical(p0, edge_slots, vertex_slots)
+    edges, edge_width = edge_q.shape
+    by_edge = np.empty((edges, edge_width * edge_width))
+    _call(edge_hessian, edges, (edge_q, edge_geometry, edge_physical), by_edge)
+    total = 0.0
+    for s in range(edges):
+        for j in range(edge_width):
+            vj = v[edge_dofs[s, j]]
+            for i in range(edge_width):
+                total += v[edge_dofs[s, i]] * by_edge[s, j * edge_width + i] * vj
+    vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
+    by_vertex = np.empty((vertices, kinematics_size * kinematics_size))
+    _call(vertex_hessian, vertices, (kinematics, vertex_geometry, vertex_physical), by_vertex)
+    motion = np.empty(kinematics_size)
+    for s in range(vertices):
+        for m in range(kinematics_size):
+            u = 0.0
+            for i in range(vertex_width):
+                u += kinematics_jacobian[s, m, i] * v[vertex_dofs[s, i]]
+            motion[m] = u
+        for n in range(kinematics_size):
+            for m in range(kinematics_size):
+                total += motion[m] * by_vertex[s, n * kinematics_size + m] * motion[n]
+    return total

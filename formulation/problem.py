@@ -221,7 +221,17 @@ class Problem:
 
     def _unstressed_form(self, v) -> float:
         """v^T H(p0) v at q*, summed over the stencils without assembling H (half the band's cost;
-        dE/dk = 0 at p0, so ``_unstressed_vertex_forms`` applies)."""
+        dE/dk = 0 at p0, so ``_unstressed_vertex_forms`` applies); one compiled call
+        (at_rest.unstressed_form) where the stencils are compiled."""
+        compiled = self._compiled_at_rest
+        hessians = (self.edge_functions.hessian, self.vertex_fixed_functions.hessian)
+        if compiled is not None and all(function.compiled for function in hessians):
+            edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry, kinematics_jacobian = (
+                compiled[0])
+            return at_rest.unstressed_form(np.ascontiguousarray(v, dtype=float), self.layout.p0, edge_slots,
+                                           vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry,
+                                           kinematics_jacobian, self.edge_dofs, self.vertex_dofs,
+                                           *(function.address for function in hessians))
         edge, vertex = self.stencil_inputs(self.layout.p0, None, None)
         return float(self._edge_forms(v, edge[2]).sum()
                      + self._unstressed_vertex_forms(self._kinematics_motion(v), vertex[3]).sum())

@@ -362,6 +362,19 @@ def test_compiled_hessian_band_and_eigenpair_are_the_numpy_sums(variant, rng):
             assert compiled_value == value and np.array_equal(compiled_mode[pb.free_index], mode * scale)
         assert pb.stability(compressed) < 0
 
+
+def test_compiled_unstressed_form_is_the_stencil_sum(rng):
+    """meets_margin's bound v^T H(p0) v (Problem._unstressed_form) in one compiled call equals the
+    numpy sum over the stencils to rounding, and the assembled Hessian's form."""
+    for strand in verification_strands(seed=4).values():
+        pb = sagfree.Problem(strand)
+        numpy_path = sagfree.Problem(strand)
+        numpy_path.__dict__["_compiled_at_rest"] = None
+        v = rng.standard_normal(pb.q_star.size)
+        reference = numpy_path._unstressed_form(v)
+        assert pb._unstressed_form(v) == pytest.approx(reference, rel=1e-12)
+        assert reference == pytest.approx(v @ (pb.hessian(pb.p0) @ v), rel=1e-9)
+
 def test_stability_of_the_straight_rest_state():
     """Mass-normalized: omega^2 of the slowest mode, the Euler-Bernoulli cantilever's 1.875^4 E I /
     (rho A L^4) with the clamped length measured from the middle of the clamped first edge."""
