@@ -181,7 +181,6 @@ def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, r
     return scatter_values(target, source, ones, entries, rows * columns).reshape(rows, columns)
 
 
-
 @numba.njit(cache=True)
 def unstressed_form(v, p0, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry,
                     kinematics_jacobian, edge_dofs, vertex_dofs, edge_hessian, vertex_hessian):  # pragma: no cover

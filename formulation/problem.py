@@ -226,12 +226,9 @@ class Problem:
         compiled = self._compiled_at_rest
         hessians = (self.edge_functions.hessian, self.vertex_fixed_functions.hessian)
         if compiled is not None and all(function.compiled for function in hessians):
-            edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry, kinematics_jacobian = (
-                compiled[0])
-            return at_rest.unstressed_form(np.ascontiguousarray(v, dtype=float), self.layout.p0, edge_slots,
-                                           vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry,
-                                           kinematics_jacobian, self.edge_dofs, self.vertex_dofs,
-                                           *(function.address for function in hessians))
+            inputs = compiled[0]  # slots, edge q and geometry, kinematics, vertex geometry, dk/dy: its arguments
+            return at_rest.unstressed_form(np.ascontiguousarray(v, dtype=float), self.layout.p0, *inputs,
+                                           self.edge_dofs, self.vertex_dofs, *(f.address for f in hessians))
         edge, vertex = self.stencil_inputs(self.layout.p0, None, None)
         return float(self._edge_forms(v, edge[2]).sum()
                      + self._unstressed_vertex_forms(self._kinematics_motion(v), vertex[3]).sum())

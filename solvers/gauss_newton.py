@@ -79,8 +79,9 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
                 history: list) -> tuple[int, str, float, int, bool]:
     """Run the inner loop from ``state`` (advanced in place) with multipliers lam, penalty mu and
     target omega; counts (solve_alm's dict) and history (|c|_inf after each accepted step) are
-    extended. Returns (reason, the QP's status if it failed (mprgp.STATUS), the last scaled projected gradient, the
-    stall count, whether p moved). deadline: time.perf_counter() value at which to stop (max_seconds).
+    extended. Returns (reason, the QP's status if it failed (mprgp.STATUS), the last scaled
+    projected gradient, the stall count, whether p moved). deadline: time.perf_counter() value at
+    which to stop (max_seconds).
     """
     lower, upper = problem.layout.lower, problem.layout.upper
     # the loop's first test, here: about half of the calls meet the target at once, and this small
@@ -101,7 +102,7 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
     deadline -= timing.clock_offset()  # on the loop's clock
     (reason, qp_status, optimality, stalled, moved, recorded, p, c, f, values, scale) = _inner(
         forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, model.w, model.p0,
-        lower, upper, *map(np.ascontiguousarray, (state.p, state.c, state.J.data, state.scale, lam)), float(mu),
+        lower, upper, p, c, data, scale, lam, float(mu),
         float(omega), float(tol), int(max_iterations), float(deadline), float(qp_rtol),
         mprgp.PRECONDITIONERS[preconditioner], border, active_set_steps, mprgp.WALKING, state.at_lower,
         state.at_upper, totals, seconds, steps)
