@@ -102,6 +102,60 @@ def test_partial_refactorization_equals_a_full_one(rng, border):
             assert np.allclose(mine, reference, rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("rows", [11, 13, 19])
+def test_factor_of_a_compiled_width_equals_the_general_loop(rng, rows):
+    """The default model's band widths are eliminated with the width a compile-time constant
+    (cholesky._eliminate_next): the factor is the general loop's bit for bit, full and partial,
+    with an active set. The same band with one more (zero) diagonal takes the general loop."""
+    n = 80
+    bb = bordered_band(sp.csr_matrix(random_banded_spd(rng, n, rows - 1, 0)), 0)
+    assert bb.band.shape[0] == rows
+    padded = np.vstack([bb.band, np.zeros((1, n))])
+    empty, corner = np.zeros((0, n)), np.zeros((0, 0))
+    first, second = rng.uniform(size=n) < 0.8, rng.uniform(size=n) < 0.8
+    second[:30] = first[:30]
+    factors = []
+    for band in (bb.band, padded):
+        cols = np.empty((n, band.shape[0]))
+        assert factor_active(band, empty, corner, first, cols, empty, corner, 0, 0)
+        full = cols.copy()
+        assert factor_active(band, empty, corner, second, cols, empty, corner, 30, 30)  # from the first change
+        factors.append((full, cols))
+    for mine, general in zip(factors[0], factors[1]):
+        assert np.array_equal(mine, general[:, :rows]) and not general[:, rows].any()
+
+
+@pytest.mark.parametrize("width, border", [(19, 0), (13, 0), (13, 1)])
+def test_gram_of_a_compiled_width_adds_in_the_pair_by_pair_order(rng, width, border):
+    """gram's rows of the default model's widths go through a dense copy and a constant-width outer
+    product (band._add_row_outer): the band is the pair-by-pair sum, rows ascending, bit for bit,
+    on rows with gaps, rows at the band's end and a dense last column (the strand multiplier)."""
+    rows, n = 70, 60
+    J = np.zeros((rows, n))
+    nb = n - border
+    for r in range(rows):
+        lo = min(r * (nb - width) // rows + rng.integers(0, 2), nb - 1)
+        span = np.arange(lo, min(lo + width, nb))
+        kept = rng.uniform(size=span.size) < 0.8
+        kept[[0, -1]] = True  # the row spans the whole band width where it fits
+        J[r, span[kept]] = rng.standard_normal(int(kept.sum()))
+    J[rows - 1, nb - 2:nb] = 1.5  # a row that reaches the band's last column
+    if border:
+        J[:, -1] = rng.standard_normal(rows)
+    d, scale = rng.uniform(1.0, 2.0, n), 3.0
+    band = gram(sp.csr_matrix(J), d, scale, border)
+    assert band.band.shape[0] == width
+    reference = np.zeros_like(band.band)
+    reference[0] = d[:nb]
+    for r in range(rows):
+        entries = np.flatnonzero(J[r, :nb])
+        for i, a in enumerate(entries):
+            va = scale * J[r, a]
+            for b in entries[i:]:
+                reference[b - a, a] += va * J[r, b]
+    assert np.array_equal(band.band, reference)
+
+
 def test_indefinite_matrix_is_reported(rng):
     H = -np.eye(6)
     result = solve_box_qp(bordered_band(sp.csr_matrix(H), 0), np.ones(6), -np.ones(6), np.ones(6))

@@ -155,17 +155,26 @@ def _row_span(indptr, indices, nb):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def _accumulate_gram(indptr, indices, data, nb, scale, columns, border, corner):  # pragma: no cover
     """Add scale J^T J, each pair of a row's entries once (the row's columns are sorted, so the
-    band column comes first and border columns last); the band part into ``columns`` (the band
+    band columns come first and border columns last); the band part into ``columns`` (the band
     transposed: columns[j, k] = band[k, j]; striding across the band's rows made a 100-vertex
-    strand's Gram 93 instead of 80 us)."""
+    strand's Gram 93 instead of 80 us). A row's band entries go through a dense copy of the row
+    (``_add_row_outer``), its border entries pair by pair. Every entry receives the same products
+    in the same order (rows ascending) as pair by pair; the dense copy only adds products with a
+    zero, which leave a sum unchanged (an entry starts at +0 or the diagonal, so it is never -0)."""
+    w1 = columns.shape[1]
+    dense = np.zeros(w1)
     for r in range(indptr.size - 1):
-        for a in range(indptr[r], indptr[r + 1]):
+        start, stop = indptr[r], indptr[r + 1]
+        split = start  # the first border entry of the row
+        while split < stop and indices[split] < nb:
+            split += 1
+        if split > start:
+            _add_row_outer(indices, data, start, split, nb, scale, columns, dense)
+        for a in range(start, stop):
             ca, va = indices[a], scale * data[a]
-            for b in range(a, indptr[r + 1]):
+            for b in range(max(a, split), stop):
                 cb = indices[b]
-                if cb < nb:
-                    columns[ca, cb - ca] += va * data[b]
-                elif ca < nb:
+                if ca < nb:
                     border[cb - nb, ca] += va * data[b]
                 else:
                     corner[ca - nb, cb - nb] += va * data[b]
@@ -173,6 +182,43 @@ def _accumulate_gram(indptr, indices, data, nb, scale, columns, border, corner):
                         corner[cb - nb, ca - nb] += va * data[b]
 
 
+#: Band widths (rows of the band) whose rows' outer products run with the width a compile-time
+#: constant (the length of these tuples): the loops unrolled and vectorized, 1.6x faster on a
+#: 100-vertex strand's Gauss-Newton Hessian. The Gauss-Newton bands of the default model: per-element
+#: stiffness (19) and strand stiffness (13); other widths take the general loop.
+_ROWS_13, _ROWS_19 = (0,) * 13, (0,) * 19
+
+
+@numba.njit(cache=True, inline="always")
+def _add_row_outer(indices, data, start, stop, nb, scale, columns, dense):  # pragma: no cover
+    """columns += scale v v^T (band part, transposed) for the row v of J with band entries
+    start..stop, through ``dense`` (zeros of the band's width on entry and on exit)."""
+    w1 = columns.shape[1]
+    lo = indices[start]
+    for a in range(start, stop):
+        dense[indices[a] - lo] = data[a]
+    if lo + w1 <= nb and w1 == 19:
+        _dense_outer(columns, dense, lo, scale, _ROWS_19)
+    elif lo + w1 <= nb and w1 == 13:
+        _dense_outer(columns, dense, lo, scale, _ROWS_13)
+    else:
+        span = indices[stop - 1] - lo + 1
+        for pa in range(span):
+            va = scale * dense[pa]
+            for pb in range(pa, span):
+                columns[lo + pa, pb - pa] += va * dense[pb]
+    for a in range(start, stop):
+        dense[indices[a] - lo] = 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _dense_outer(columns, dense, lo, scale, width):  # pragma: no cover - compiled
+    """columns[lo + a, b - a] += scale dense[a] dense[b] for a <= b < len(width) (a constant)."""
+    w1 = len(width)
+    for pa in range(w1):
+        va = scale * dense[pa]
+        for pb in range(pa, w1):
+            columns[lo + pa, pb - pa] += va * dense[pb]
 
 
 def csr_arrays(J) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
