@@ -493,8 +493,8 @@ def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float, tol: float
     the KKT confirmation at the new point refines this factorization instead of factoring its own
     (SaddleFactor.solve_nearby: one or two corrections where a band LU costs ~0.2 ms; the
     variables strictly inside their boxes differ from its set on nearly every groom strand, by
-    stiffness multipliers a hair above 1). On 2000-vertex strands the step is rejected (|d|_inf ~0.5, |c|_inf ~1e5 after it, even at a
-    sixteenth of it) and solve_alm tries Newton-SQP instead.
+    stiffness multipliers a hair above 1). On 2000-vertex strands the step is rejected (|d|_inf
+    ~0.5, |c|_inf ~1e5 after it, even at a sixteenth of it) and solve_alm tries Newton-SQP instead.
     """
     free = working_set(p, problem.layout.lower, problem.layout.upper)
     factor = SaddleFactor(J, model.w, free)

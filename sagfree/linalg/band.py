@@ -158,9 +158,10 @@ def _accumulate_gram(indptr, indices, data, nb, scale, columns, border, corner):
     band columns come first and border columns last); the band part into ``columns`` (the band
     transposed: columns[j, k] = band[k, j]; striding across the band's rows made a 100-vertex
     strand's Gram 93 instead of 80 us). A row's band entries go through a dense copy of the row
-    (``_add_row_outer``), its border entries pair by pair. Every entry receives the same products
-    in the same order (rows ascending) as pair by pair; the dense copy only adds products with a
-    zero, which leave a sum unchanged (an entry starts at +0 or the diagonal, so it is never -0)."""
+    (``_add_row_outer``), its border entries pair by pair. For a finite J every entry receives the
+    same products in the same order (rows ascending) as pair by pair; the dense copy only adds
+    products with a zero, which leave a sum unchanged (an entry starts at +0 or the diagonal, so it
+    is never -0)."""
     w1 = columns.shape[1]
     dense = np.zeros(w1)
     for r in range(indptr.size - 1):

@@ -132,10 +132,10 @@ def _eliminate(cols, j, first):  # pragma: no cover - compiled
 
 #: Half-bandwidths whose interior columns are eliminated with the width a compile-time constant
 #: (the length of these tuples): the loop bounds known, the compiler unrolls and vectorizes the
-#: update, 1.7x faster on a 100-vertex strand's Gauss-Newton band and 1.5x on its Hessian's. They
-#: are the widths of the default model: the Gauss-Newton band with per-element stiffness (18) and
-#: strand stiffness (12), the free DOFs' Hessian and the row-space normal matrix (10); other widths
-#: take the general loop, the same arithmetic.
+#: update, 1.4-1.7x faster on a 100-vertex strand's Gauss-Newton band. They are the widths of the
+#: default model: the Gauss-Newton band with per-element stiffness (18) and strand stiffness (12),
+#: the free DOFs' Hessian and the row-space normal matrix (10); other widths take the general loop,
+#: the same arithmetic.
 _WIDTH_10, _WIDTH_12, _WIDTH_18 = (0,) * 10, (0,) * 12, (0,) * 18
 
 
