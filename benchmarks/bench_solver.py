@@ -24,6 +24,7 @@ Prints three tables, all measured in this run:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -76,10 +77,10 @@ class RevisionRunner:
 
     def __init__(self, revision: str, strands: int, vertices: int, jobs: int):
         self.revision, self.arguments = revision, [str(strands), str(vertices), str(jobs)]
-        self._installed = installed_revision(revision)
+        self._stack = contextlib.ExitStack()
 
     def __enter__(self) -> "RevisionRunner":
-        self.site = self._installed.__enter__()
+        self.site = self._stack.enter_context(installed_revision(self.revision))
         self.available = self.site is not None
         if not self.available and self.revision:
             print(f"(no `before` row for {self.revision})")
@@ -95,7 +96,7 @@ class RevisionRunner:
         return measured
 
     def __exit__(self, *exc) -> None:
-        self._installed.__exit__(*exc)
+        self._stack.close()
 
 
 def groom_table(strands: int, vertices: int, jobs: int, before: str, repeats: int) -> None:

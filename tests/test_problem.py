@@ -339,7 +339,6 @@ def test_unstressed_hessian_by_the_chain_rule_equals_the_stencils(curvature):
     assert np.array_equal(pb._hessian_blocks(p, None, None)[1][1], pb.vertex_functions.hessian(*vertex)[0])
 
 
-
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_compiled_hessian_band_and_eigenpair_are_the_numpy_sums(variant, rng):
     """Problem.stability at q* is two compiled calls: the Hessian band from the stencils' drivers

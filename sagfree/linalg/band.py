@@ -183,11 +183,13 @@ def _accumulate_gram(indptr, indices, data, nb, scale, columns, border, corner):
                         corner[cb - nb, ca - nb] += va * data[b]
 
 
-#: Band widths (rows of the band) whose rows' outer products run with the width a compile-time
-#: constant (the length of these tuples): the loops unrolled and vectorized, 1.6x faster on a
-#: 100-vertex strand's Gauss-Newton Hessian. The Gauss-Newton bands of the default model: per-element
-#: stiffness (19) and strand stiffness (13); other widths take the general loop.
-_ROWS_13, _ROWS_19 = (0,) * 13, (0,) * 19
+#: The default model's band widths (rows of the band storage), for the kernels that run with the
+#: width a compile-time constant (the length of these tuples: loops unrolled and vectorized, 1.6x
+#: faster on a 100-vertex strand's Gauss-Newton Hessian, 1.4-1.7x its band Cholesky): the
+#: Gauss-Newton band with per-element stiffness (19) and strand stiffness (13), the free DOFs'
+#: Hessian and the row-space normal matrix (11). Other widths take the general loops, the same
+#: arithmetic.
+ROWS_11, ROWS_13, ROWS_19 = (0,) * 11, (0,) * 13, (0,) * 19
 
 
 @numba.njit(cache=True, inline="always")
@@ -199,9 +201,9 @@ def _add_row_outer(indices, data, start, stop, nb, scale, columns, dense):  # pr
     for a in range(start, stop):
         dense[indices[a] - lo] = data[a]
     if lo + w1 <= nb and w1 == 19:
-        _dense_outer(columns, dense, lo, scale, _ROWS_19)
+        _dense_outer(columns, dense, lo, scale, ROWS_19)
     elif lo + w1 <= nb and w1 == 13:
-        _dense_outer(columns, dense, lo, scale, _ROWS_13)
+        _dense_outer(columns, dense, lo, scale, ROWS_13)
     else:
         span = indices[stop - 1] - lo + 1
         for pa in range(span):
@@ -213,9 +215,9 @@ def _add_row_outer(indices, data, start, stop, nb, scale, columns, dense):  # pr
 
 
 @numba.njit(cache=True, inline="always")
-def _dense_outer(columns, dense, lo, scale, width):  # pragma: no cover - compiled
-    """columns[lo + a, b - a] += scale dense[a] dense[b] for a <= b < len(width) (a constant)."""
-    w1 = len(width)
+def _dense_outer(columns, dense, lo, scale, rows):  # pragma: no cover - compiled
+    """columns[lo + a, b - a] += scale dense[a] dense[b] for a <= b < len(rows) (a constant)."""
+    w1 = len(rows)
     for pa in range(w1):
         va = scale * dense[pa]
         for pb in range(pa, w1):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .band import ROWS_11, ROWS_13, ROWS_19
 from .timing import LINEAR_ALGEBRA, timed
 
 
@@ -130,38 +131,30 @@ def _eliminate(cols, j, first):  # pragma: no cover - compiled
                 cols[target, i - k] -= cols[j, i] * f
 
 
-#: Half-bandwidths whose interior columns are eliminated with the width a compile-time constant
-#: (the length of these tuples): the loop bounds known, the compiler unrolls and vectorizes the
-#: update, 1.4-1.7x faster on a 100-vertex strand's Gauss-Newton band. They are the widths of the
-#: default model: the Gauss-Newton band with per-element stiffness (18) and strand stiffness (12),
-#: the free DOFs' Hessian and the row-space normal matrix (10); other widths take the general loop,
-#: the same arithmetic.
-_WIDTH_10, _WIDTH_12, _WIDTH_18 = (0,) * 10, (0,) * 12, (0,) * 18
-
-
 @numba.njit(cache=True, inline="always")
 def _eliminate_next(cols, j):  # pragma: no cover - compiled
     """_eliminate(cols, j, j + 1): column j's update of the columns after it, bit for bit, with a
-    constant width where the band has one of the widths above and column j is an interior one."""
+    constant width where the band has one of the default model's widths (band.ROWS_*) and column j
+    is an interior one."""
     nb, w1 = cols.shape
     if j + w1 - 1 < nb:
         if w1 == 19:
-            _eliminate_interior(cols, j, _WIDTH_18)
+            _eliminate_interior(cols, j, ROWS_19)
             return
         if w1 == 13:
-            _eliminate_interior(cols, j, _WIDTH_12)
+            _eliminate_interior(cols, j, ROWS_13)
             return
         if w1 == 11:
-            _eliminate_interior(cols, j, _WIDTH_10)
+            _eliminate_interior(cols, j, ROWS_11)
             return
     _eliminate(cols, j, j + 1)
 
 
 @numba.njit(cache=True, inline="always")
-def _eliminate_interior(cols, j, width):  # pragma: no cover - compiled
-    """_eliminate(cols, j, j + 1) for a column with ``len(width)`` entries below its diagonal (a
+def _eliminate_interior(cols, j, rows):  # pragma: no cover - compiled
+    """_eliminate(cols, j, j + 1) for a column with ``len(rows) - 1`` entries below its diagonal (a
     tuple: its length is a constant of the compiled code)."""
-    w = len(width)
+    w = len(rows) - 1
     for k in range(1, w + 1):
         f = cols[j, k]
         if f != 0.0:

@@ -40,4 +40,3 @@ def csc_column_norms(indptr, data):  # pragma: no cover - compiled
             s += data[k] * data[k]
         out[j] = s
     return out
-

@@ -28,15 +28,9 @@ class NormalFactor:
         indptr, indices, data = csc_arrays(J)
         rows = J.shape[0]
         dense = columns & dense_columns(indptr, rows)
-        sparse_columns = columns & ~dense
-        transposed = np.zeros((rows, _column_span(indptr, indices, sparse_columns) + 1))  # the band transposed
-        transposed[:, 0] = shift
-        _accumulate_row_gram(indptr, indices, data, np.asarray(d, dtype=float), sparse_columns, transposed)
-        band = np.ascontiguousarray(transposed.T)
-        self._cols = np.empty((rows, band.shape[0]))
+        self._cols, self.definite = _factored_normal(indptr, indices, data, rows, np.asarray(d, dtype=float),
+                                                     columns & ~dense, shift)
         self._empty_border, self._empty_corner = np.zeros((0, rows)), np.zeros((0, 0))
-        self.definite = factor_active(band, self._empty_border, self._empty_corner, np.ones(rows, dtype=np.bool_),
-                                      self._cols, self._empty_border, self._empty_corner, 0, 0)
         self._U = np.zeros((rows, int(dense.sum())))
         for k, j in enumerate(np.flatnonzero(dense)):
             self._U[indices[indptr[j]:indptr[j + 1]], k] = data[indptr[j]:indptr[j + 1]] * np.sqrt(d[j])
@@ -84,17 +78,12 @@ def _seminormal_least_squares(indptr, indices, data, rows, gradient, scale, free
         if free[j] and indptr[j + 1] - indptr[j] > dense_entries:
             return None
         weights[j] = 1.0 / scale[j]
-    transposed = np.zeros((rows, _column_span(indptr, indices, free) + 1))  # the band transposed
-    transposed[:, 0] = shift
-    _accumulate_row_gram(indptr, indices, data, weights, free, transposed)
-    band = np.ascontiguousarray(transposed.T)
-    factor = np.empty((rows, band.shape[0]))
-    no_border, no_corner = np.zeros((0, rows)), np.zeros((0, 0))
+    factor, definite = _factored_normal(indptr, indices, data, rows, weights, free, shift)
     lam = np.zeros(rows)
-    if not factor_active(band, no_border, no_corner, np.ones(rows, dtype=np.bool_), factor, no_border, no_corner, 0,
-                         0):
+    if not definite:
         lam[:] = np.nan
         return lam
+    no_border, no_corner = np.zeros((0, rows)), np.zeros((0, 0))
     step, residual = np.empty(rows), np.empty(n)
     for _ in range(2):  # the solve, then the correction
         pulled = csc_rmatvec(indptr, indices, data, lam)
@@ -107,6 +96,21 @@ def _seminormal_least_squares(indptr, indices, data, rows, gradient, scale, free
         for r in range(rows):
             lam[r] += step[r]
     return lam
+
+
+@numba.njit(cache=True)
+def _factored_normal(indptr, indices, data, rows, d, include, shift):  # pragma: no cover - compiled
+    """(Cholesky factor columns, definite) of A = J_C diag(d_C) J_C^T + shift I over the columns C of
+    ``include`` (NormalFactor's band, factored by cholesky.factor_active with every row free)."""
+    transposed = np.zeros((rows, _column_span(indptr, indices, include) + 1))  # the band transposed
+    transposed[:, 0] = shift
+    _accumulate_row_gram(indptr, indices, data, d, include, transposed)
+    band = np.ascontiguousarray(transposed.T)
+    factor = np.empty((rows, band.shape[0]))
+    no_border, no_corner = np.zeros((0, rows)), np.zeros((0, 0))
+    definite = factor_active(band, no_border, no_corner, np.ones(rows, dtype=np.bool_), factor, no_border, no_corner,
+                             0, 0)
+    return factor, definite
 
 
 @numba.njit(cache=True)
