@@ -12,9 +12,7 @@ process time per strand of each, the ratio of the totals and the median of the p
 and whether both found the same solutions bit for bit (p, status, smallest eigenvalue): a change
 meant to keep the arithmetic must say yes; otherwise the statuses that differ, the stable counts
 and the largest relative difference of R tell whether both reached the same optima. The copy
-compiles its numba kernels on first use (about a minute and a half), outside the timing. (This
-checkout's kernels come from numba's cache, which checks only each function's own file: after
-editing a kernel that functions in other files call, delete the checkout's *.nbi / *.nbc first.)
+compiles its numba kernels on first use (about a minute and a half), outside the timing.
 """
 from __future__ import annotations
 

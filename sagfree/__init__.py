@@ -16,6 +16,11 @@ if _util.find_spec("sagfree.formulation") is None:  # e.g. PYTHONPATH=. from a c
                       "folders beside it in the source tree): run `pip install .` (or `pip install -e .`) "
                       "in the repository first")
 
+# before any kernel is decorated: cached kernels recompile when a module they use changes
+from sagfree.kernel_cache import register as _register_kernel_cache  # noqa: E402
+
+_register_kernel_cache(__name__)
+
 from sagfree import scenes  # noqa: E402
 from sagfree.contract.result import Result  # noqa: E402
 from sagfree.formulation import Problem, Strand  # noqa: E402
