@@ -30,6 +30,7 @@ import os
 import subprocess
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -137,10 +138,14 @@ def size_table(sizes, strands: int) -> None:
     print(f"\n2. time per strand against strand size ({strands} groom strands per size, one core)")
     print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'GN steps':>9} {'SQP':>5} {'Newton':>7} "
           f"{'factor./GN':>11} {'converged':>10} {'stable':>7}")
+    notes = []  # warnings (the radius above an edge length of some long groom strands), after the table
     for n in sizes:
         groom = sagfree.scenes.groom(strands, n, seed=0)
-        sagfree.optimize(groom[:1], jobs=1)
-        results = sagfree.optimize(groom, jobs=1)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            sagfree.optimize(groom[:1], jobs=1)
+            results = sagfree.optimize(groom, jobs=1)
+        notes += [f"{n} vertices: {warning.message}" for warning in caught]
         t = np.mean([r.time for r in results])
         steps = np.mean([r.iterations.get("gauss_newton", 0) for r in results])
         factorizations = np.mean([r.iterations.get("factorizations", 0) for r in results])
@@ -150,6 +155,8 @@ def size_table(sizes, strands: int) -> None:
         print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {steps:9.1f} {sqp:5.1f} {newton:7.1f} "
               f"{factorizations / max(steps, 1):11.1f} "
               f"{ok:>6}/{len(results)} {stable:>7}", flush=True)
+    for note in dict.fromkeys(notes):
+        print(f"   ({note})")
 
 
 def ablation_table(strands: int, vertices: int) -> None:

@@ -4,7 +4,8 @@ One call of ``inner_solve`` runs the inner loop of ``solve_alm`` (alm module doc
 "Crawl", "Stall") from p until it stops: the gradient of L(p) = R(p) + lam^T c(p) + mu/2 |c(p)|^2
 and its scaled projected gradient, the banded Gauss-Newton Hessian diag(w) + mu J^T J (damped as
 alm._Model.hessian says), the box QP (mprgp.box_qp: MPRGP with the active-set Cholesky, warm-started
-on the previous step's bounds), the nonmonotone Armijo line search on L, and c and dc/dp at each
+on the previous step's bounds), the nonmonotone Armijo line search on L with the full step's
+second-order correction (``corrected_trial``, which the Python loop calls too), and c and dc/dp at each
 trial point, evaluated by the same compiled kernels as Problem.residual and Problem.strand_jacobian
 (formulation.at_rest, numba calling the CasADi stencils at their addresses). The
 Python loop in alm (``_inner_solve_python``) does the same in the same order, and stays for
@@ -33,7 +34,8 @@ from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
 from sagfree.linalg.band import gram_arrays
-from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
+from sagfree.linalg.cholesky import factor_active, solve_factored
+from sagfree.linalg.compressed import csc_column_norms, csc_matvec, csc_rmatvec
 
 from . import mprgp
 
@@ -53,8 +55,8 @@ QP_MAX_ITERATIONS = 10_000  # solve_box_qp's default
 TARGET, CRAWL, NO_PROGRESS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED = range(6)
 #: solve counters the loop advances, in the order of its counts array
 COUNTED = ("gauss_newton", "line_search", "cg", "expansion", "proportioning", "active_set", "interior",
-           "factorizations", "factored_rows")
-_GAUSS_NEWTON, _LINE_SEARCH = 0, 1  # their places in the counts array
+           "factorizations", "factored_rows", "corrected")
+_GAUSS_NEWTON, _LINE_SEARCH, _CORRECTED = 0, 1, 9  # their places in the counts array
 _QP_COUNTS = (mprgp.CG, mprgp.EXPANSION, mprgp.PROPORTIONING, mprgp.ACTIVE_SET, mprgp.INTERIOR,
               mprgp.FACTORIZATIONS, mprgp.FACTORED_ROWS)  # COUNTED[2:] in mprgp's counts layout
 
@@ -205,6 +207,36 @@ def _largest_magnitude(c):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def corrected_trial(band, band_border, corner, at_lower, at_upper, indptr, indices, values, p, step, c, c_trial, mu,
+                    lower, upper):  # pragma: no cover - compiled
+    """The full Gauss-Newton step with its second-order correction (alm module docstring, Inner loop):
+    p + d + e clipped into the box, e = -H_F^-1 mu J^T r on the QP's free variables F (zero on the
+    bounds it ended on: at_lower / at_upper), r = c(p + d) - c(p) - J d the error of c's
+    linearization, H (band, band_border, corner) the step's Gauss-Newton Hessian, J at p in
+    compressed columns. Empty where H_F does not factor."""
+    n = p.size
+    predicted = csc_matvec(indptr, indices, values, step, c.size)
+    error = np.empty(c.size)
+    for r in range(c.size):
+        error[r] = mu * (c_trial[r] - c[r] - predicted[r])
+    pulled = csc_rmatvec(indptr, indices, values, error)
+    free, rhs = np.empty(n, dtype=np.bool_), np.empty(n)
+    for j in range(n):
+        free[j] = not (at_lower[j] or at_upper[j])
+        rhs[j] = -pulled[j] if free[j] else 0.0
+    nb, m = band.shape[1], corner.shape[0]
+    cols, lborder, lcorner = np.empty((nb, band.shape[0])), np.empty((m, nb)), np.empty((m, m))
+    if not factor_active(band, band_border, corner, free, cols, lborder, lcorner, 0, 0):
+        return np.empty(0)
+    correction = np.empty(n)
+    solve_factored(cols, lborder, lcorner, rhs, correction)
+    trial = np.empty(n)
+    for j in range(n):
+        trial[j] = min(max(p[j] + step[j] + correction[j], lower[j]), upper[j])
+    return trial
+
+
+@numba.njit(cache=True)
 def _lagrangian_optimality(w, p, p0, indptr, indices, data, lam, mu, c, scale, lower, upper):  # pragma: no cover
     """(scaled projected gradient, gradient) of the augmented Lagrangian at p: gradient = w (p - p0)
     + J^T (lam + mu c), J in compressed columns; the inner loop's stopping test."""
@@ -300,7 +332,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
         if -slope <= rounding:
             reason = NO_PROGRESS  # the model predicts no decrease above the rounding of L
             break
-        alpha, accepted = 1.0, False
+        alpha, accepted, corrected = 1.0, False, False
         trial, c_trial, f_trial, merit_trial = np.empty(n), np.empty(0), np.empty(0), 0.0
         for _ in range(40):
             counts[_LINE_SEARCH] += 1
@@ -313,6 +345,23 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
             if merit_trial <= reference + ARMIJO * alpha * slope + rounding:
                 accepted = np.all(np.isfinite(c_trial))
                 break
+            if not corrected:  # the full step failed: its second-order correction before any halving
+                corrected = True
+                started = timing.clock_seconds(clock, clock_id, buffer)
+                candidate = corrected_trial(band, band_border, corner, at_lower, at_upper, csc_indptr, csc_indices,
+                                            values, p, step, c, c_trial, mu, lower, upper)
+                seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - started
+                if candidate.size:
+                    counts[_LINE_SEARCH] += 1
+                    started = timing.clock_seconds(clock, clock_id, buffer)
+                    c_candidate, f_candidate = _residual(candidate, forces_args, free, row_scale)
+                    seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
+                    merit_candidate = _merit(w, candidate, p0, c_candidate, lam, mu, work)[0]
+                    if merit_candidate <= reference + ARMIJO * slope + rounding:
+                        trial, c_trial, f_trial, merit_trial = candidate, c_candidate, f_candidate, merit_candidate
+                        accepted = np.all(np.isfinite(c_trial))
+                        counts[_CORRECTED] += 1
+                        break
             alpha *= 0.5
         if not accepted:
             reason = NO_PROGRESS  # no descent left at this accuracy: the outer loop decides

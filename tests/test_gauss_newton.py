@@ -100,3 +100,41 @@ def test_the_merit_sums_as_numpy_does(size):
 def test_an_unknown_preconditioner_is_refused_by_name():
     with pytest.raises(ValueError, match="preconditioner must be one of .* got 'ilu'"):
         alm.solve_alm(Problem(sagfree.scenes.horizontal(8)), preconditioner="ilu")
+
+
+def test_a_crawl_along_the_bilinear_valley_ends_with_the_corrected_full_step_in_both_loops(monkeypatch):
+    """groom(60, 25, seed=0)[58]: halving Gauss-Newton's straight steps along the valley of
+    stiffness x (kbar - kappa*) took 30 steps and 146 trial points (an inner solve's cap); with the
+    full step's second-order correction, 3 and 4."""
+    problem = Problem(sagfree.scenes.groom(60, 25, seed=0)[58])
+    compiled, python = solved_both_ways(monkeypatch, problem)
+    assert compiled.status == "converged" and compiled.iterations["corrected"] > 0
+    assert compiled.iterations["gauss_newton"] <= 6
+    assert np.array_equal(compiled.p, python.p) and compiled.iterations == python.iterations
+
+
+def test_the_correction_solves_the_gauss_newton_system_for_the_linearization_error():
+    """e = -H_F^-1 mu J^T r on the free variables, 0 on the bounds, r = c(p + d) - c(p) - J d (the
+    kernel called at the point -d, so that it returns -d + d + e = e exactly)."""
+    problem = Problem(sagfree.scenes.groom(1, 20, seed=0)[0])
+    p, mu = 0.5 * (problem.p0 + problem.layout.upper), 1e3
+    J, c = problem.strand_jacobian(p), problem.residual(p)
+    step = 1e-3 * np.random.default_rng(0).standard_normal(p.size) * (problem.layout.upper - problem.layout.lower)
+    at_lower, at_upper = np.zeros(p.size, dtype=bool), np.zeros(p.size, dtype=bool)
+    at_lower[:3], at_upper[-2:] = True, True
+    step[at_lower | at_upper] = 0.0
+    hessian = alm._Model(problem).hessian(J, mu, gauss_newton.DAMPING[0])
+    c_trial = problem.residual(p + step)
+    indptr, indices, data = J.csc()
+    unbounded = np.full(p.size, np.inf)
+    correction = gauss_newton.corrected_trial(hessian.band, hessian.border, hessian.corner, at_lower, at_upper, indptr,
+                                              indices, data, -step, step, c, c_trial, mu, -unbounded, unbounded)
+    free = ~(at_lower | at_upper)
+    assert np.all(correction[~free] == 0.0) and np.abs(correction[free]).max() > 0
+    jacobian = np.zeros(J.shape)
+    for j in range(J.shape[1]):
+        jacobian[indices[indptr[j]:indptr[j + 1]], j] = data[indptr[j]:indptr[j + 1]]
+    pulled = mu * jacobian.T @ (c_trial - c - jacobian @ step)
+    system = hessian.to_dense()[np.ix_(free, free)]  # condition ~1e16 (rest-length columns): a backward error
+    residual = system @ correction[free] + pulled[free]
+    assert np.abs(residual).max() <= 1e-12 * (np.abs(system) @ np.abs(correction[free]) + np.abs(pulled[free])).max()
