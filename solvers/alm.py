@@ -118,6 +118,7 @@ from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, 
                            MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
+from .statics_start import statics_start
 
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
 MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
@@ -174,11 +175,13 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     mu0, mu_growth, omega0: the penalty's floor and growth, the first inner target. preconditioner:
     "cholesky" (active-set Cholesky), "jacobi" or "none". qp_rtol: relative tolerance of the box
     QPs. start: "auto" starts per-element stiffness from linear_start (from p0 with bodies or a
-    pinned tip: module docstring, Start), "p0" from p0.
+    pinned tip: module docstring, Start), which for a strand held by its root alone is the optimum
+    (solvers.statics_start); "linear" the same without that last step (the least rest change spread
+    into the boxes: the Gauss-Newton loop's own path, for comparisons and tests); "p0" from p0.
     """
     clock = time.perf_counter()
-    if start not in ("auto", "p0"):
-        raise ValueError(f"start must be 'auto' or 'p0', got {start!r}")
+    if start not in ("auto", "linear", "p0"):
+        raise ValueError(f"start must be 'auto', 'linear' or 'p0', got {start!r}")
     if preconditioner not in PRECONDITIONERS:
         raise ValueError(f"preconditioner must be one of {tuple(PRECONDITIONERS)}, got {preconditioner!r}")
     history: list[float] = []
@@ -190,9 +193,9 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     attempts = feasible_rounds = 0
     if p_start is None:
         p_start = problem.p0
-        if (start == "auto" and problem.layout.stiffness == "element" and CONTACT_BLOCK not in problem.blocks
+        if (start != "p0" and problem.layout.stiffness == "element" and CONTACT_BLOCK not in problem.blocks
                 and problem.strand.tip != "pinned" and any(b in problem.blocks for b in STIFFNESS_BLOCKS)):
-            linear = linear_start(problem)
+            linear = linear_start(problem, optimal=start == "auto")
             if linear is not None:
                 p_start, history = linear, [float(np.abs(problem.residual(problem.p0)).max(initial=0.0))]
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
@@ -575,7 +578,7 @@ def _initial_penalty(mu0: float, objective: float, c: np.ndarray) -> float:
     return max(mu0, min(10.0 * max(1.0, abs(objective)) / max(1.0, 0.5 * float(c @ c)), 1e8))
 
 
-def linear_start(problem: Problem) -> np.ndarray | None:
+def linear_start(problem: Problem, optimal: bool = True) -> np.ndarray | None:
     """A nearly feasible start for per-element stiffness: the least rest-shape change that balances
     gravity, spread into the boxes by stiffening where it does not fit (None if the linear system is
     singular; the solve then starts from p0).
@@ -590,7 +593,10 @@ def linear_start(problem: Problem) -> np.ndarray | None:
     each element just enough to bring its change into its box, keeping c. Only the root, where the
     boxes bind, starts stiffened, at |c|_inf ~1e-4 to 1e-3 with R within a few percent of the
     optimum; a start from the strand-stiffness solution (supplement section V) cost more than half of
-    a strand's Gauss-Newton steps.
+    a strand's Gauss-Newton steps. For a strand held by its root alone that step is the only rest
+    change that balances gravity, and with ``optimal`` each element's multiplier is then chosen as
+    the optimum's (solvers.statics_start): the start is the optimum, which the outer loop only
+    confirms.
     """
     layout = problem.layout
     rest = layout.block_mask(REST_BLOCKS)
@@ -599,7 +605,8 @@ def linear_start(problem: Problem) -> np.ndarray | None:
         rest))
     if step is None or not np.all(np.isfinite(step[0])):
         return None
-    return spread_rest_change(problem, step[0])
+    optimum = statics_start(problem, step[0]) if optimal else None  # held by its root alone: the optimum
+    return optimum if optimum is not None else spread_rest_change(problem, step[0])
 
 
 #: weight of R against 1/2 |c|^2 in the best-effort phase: a tie-break among least-residual points

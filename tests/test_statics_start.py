@@ -1,0 +1,41 @@
+"""asc's start for a strand held by its root alone is the optimum (solvers.statics_start)."""
+import numpy as np
+import pytest
+
+import sagfree
+from sagfree.contract.optimality import kkt_optimality
+from sagfree.formulation.problem import Problem
+from sagfree.solvers import alm
+from sagfree.solvers.statics_start import least_multiplier, statics_start
+
+
+@pytest.mark.parametrize("index", [0, 3, 11])
+def test_the_start_of_a_root_held_strand_is_the_optimum_gauss_newton_reaches(index):
+    problem = Problem(sagfree.scenes.groom(12, 60, seed=0)[index], stabilize=False)
+    start = alm.linear_start(problem)
+    assert np.abs(problem.residual(start)).max() <= 1e-10  # balanced: statics fixed every element's stresses
+    assert kkt_optimality(problem, start) <= 1e-8           # and each multiplier is its element's optimum
+    walked = alm.solve_alm(problem, start="linear")          # Gauss-Newton from the boxed least change
+    assert walked.status == "converged" and walked.iterations["gauss_newton"] > 0
+    assert problem.objective(start) == pytest.approx(walked.objective, rel=1e-8)
+    assert np.abs(start - walked.p).max() <= 1e-3
+    started = alm.solve_alm(problem)
+    assert started.status == "converged" and started.iterations["gauss_newton"] <= 1
+
+
+def test_the_start_needs_the_root_alone_to_hold_the_strand():
+    strand = sagfree.scenes.horizontal(40)
+    change = np.zeros(Problem(strand).n_parameters)
+    for held in (strand.attached(tip="pinned"), strand.attached(pins=[20])):
+        assert statics_start(Problem(held), change) is None
+    assert statics_start(Problem(strand, stiffness="strand"), change) is None
+
+
+def test_least_multiplier_minimizes_its_convex_share_inside_the_box():
+    a, weight, centre = np.array([2.0, 2.0, 0.0]), np.array([1.0, 1.0, 1.0]), np.array([1.0, 1.0, 1.0])
+    x = least_multiplier(a, weight, centre, np.array([1.0, 2.0, 0.5]), np.array([10.0, 10.0, 10.0]))
+    grid = np.linspace(1.0, 10.0, 200001)
+    assert x[0] == pytest.approx(grid[np.argmin(a[0] / grid**2 + (grid - 1.0) ** 2)], abs=1e-4)
+    assert -2 * a[0] / x[0] ** 3 + 2 * (x[0] - 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert x[1] == 2.0 and x[2] == 1.0  # the optimum (1.54) below the box: its bound; no rest change: the centre
+    assert least_multiplier(a, weight, centre, np.array([2.0, 1.0, 1.0]), np.array([1.0, 2.0, 2.0])) is None
