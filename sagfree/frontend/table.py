@@ -28,8 +28,10 @@ class Solver:
     compiled instance) before a batch, so worker processes inherit it, calling ``announce()`` before
     a noticeable wait; precompile(problem, **options): starts that work in the background (a study
     starts it for all its solvers after its first warm-up); warm_options: options of
-    the untimed warm-up solve (frontend.warm) that differ from the batch's; uses_stiffness: its
-    answer depends on the stiffness mode (naive and the predecessor keep p0's stiffness).
+    the untimed warm-up solve (frontend.warm) that differ from the batch's; warm_paths: further
+    option sets the warm-up strand is solved with, for code its own solve does not reach;
+    uses_stiffness: its answer depends on the stiffness mode (naive and the predecessor keep p0's
+    stiffness).
     """
 
     name: str
@@ -40,6 +42,7 @@ class Solver:
     prepare: Callable[..., None] | None = None
     precompile: Callable[..., None] | None = None
     warm_options: dict = field(default_factory=dict)
+    warm_paths: tuple = ()
     uses_stiffness: bool = True
 
     @property
@@ -54,7 +57,9 @@ class Solver:
 
 
 SOLVERS: dict[str, Solver] = {s.name: s for s in (
-    Solver("asc", solve_alm, "ours: augmented Lagrangian + Gauss-Newton + MPRGP + active-set Cholesky"),
+    # the warm-up strand, held by its root alone, starts at its optimum: its Gauss-Newton path loads the rest
+    Solver("asc", solve_alm, "ours: augmented Lagrangian + Gauss-Newton + MPRGP + active-set Cholesky",
+           warm_paths=({"start": "linear"},)),
     Solver("ipopt", ipopt.solve_ipopt, "Ipopt through CasADi's nlpsol, exact Hessian, MUMPS",
            lambda: ipopt.available(),
            "CasADi's Ipopt plugin (casadi.has_nlpsol('ipopt') is False); the CasADi wheels on PyPI bundle it: "

@@ -8,9 +8,11 @@ options, untimed: the batch runner does it in every process it solves in (a fork
 its parent's), ``sagfree.solve`` before its first call. What stays per strand size (building Ipopt's
 instance for a new size) is the solver's own ``Result.setup_time``, kept out of ``Result.time``.
 Strands resting on bodies run further compiled code (contact detection and forces, stability on the
-bodies' tangent planes): with bodies, the warm-up strand rests on the first of them. What only
-rarer branches reach is prepared on its own: the QPs' interior-point fallback, the constraints'
-curvature of Newton-SQP.
+bodies' tangent planes): with bodies, the warm-up strand rests on the first of them. A solver's
+``warm_paths`` solve the strand again along paths its own solve skips (asc's Gauss-Newton loop: the
+warm-up strand, held by its root alone, starts at its optimum, and the first strand that needed a
+Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
+prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP.
 """
 from __future__ import annotations
 
@@ -150,5 +152,7 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     (held tips, long strands) builds those stencils on first use, which put 0.12 s of a cold run's
     compile into the first such strand's Result.time."""
     problem = _warm_strand(problem_options)
-    solve_stabilized(entry.function, problem, {**_structure_options(solver_options), **entry.warm_options})
+    options = {**_structure_options(solver_options), **entry.warm_options}
+    for path in ({}, *entry.warm_paths):
+        solve_stabilized(entry.function, problem, {**options, **path})
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
