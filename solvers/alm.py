@@ -25,7 +25,10 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     one compiled call where the model is compiled (solvers.gauss_newton); _inner_solve_python is
     the same loop step for step, for the rest (no C compiler, strands on bodies).
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
-    stiffened where it leaves the boxes (linear_start), with least-squares multipliers. With bodies,
+    stiffened where it leaves the boxes (linear_start), with least-squares multipliers. For a strand
+    held by its root alone that change is the only balancing one, and each element's multiplier is
+    chosen as the optimum's (solvers.statics_start): the start is the optimum, and the outer loop
+    only confirms it (its KKT check) or polishes it. With bodies,
     from p0: the same step with the supports (clipped at zero where it pulled) left the rest shape
     to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
     Lagrangian then lost feasibility from it. With a pinned tip, from p0 too: from the linear start
