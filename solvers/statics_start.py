@@ -121,9 +121,12 @@ def _root_rest_length(problem: Problem, a: float, needed: float, others: float, 
         beta = _least_multiplier_scalar(a * scale**2, wb, p0[ib], low, upper[ib])
         if beta <= low * (1 + 1e-15) and needed * scale >= lower[ib]:  # on the box: beta = needed x scale
             # 1/2 wu u0^2 + 1/2 a / needed^2 + 1/2 wb (needed (base + slope u0) - 1)^2
-            u_new = -wb * needed * slope * (needed * base - p0[ib]) / (wu + wb * (needed * slope) ** 2)
+            numerator, denominator = -wb * needed * slope * (needed * base - p0[ib]), wu + wb * (needed * slope) ** 2
         else:  # 1/2 wu u0^2 + 1/2 a (base + slope u0)^2 / beta^2
-            u_new = -a * slope * base / beta**2 / (wu + a * slope**2 / beta**2)
+            numerator, denominator = -a * slope * base / beta**2, wu + a * slope**2 / beta**2
+        if denominator == 0.0:  # the share does not depend on u0: keep it
+            break
+        u_new = numerator / denominator
         u_new = min(max(u_new, lower[iu]), upper[iu])
         if abs(u_new - u0) <= 4 * EPS * (upper[iu] - lower[iu]):
             u0 = u_new
@@ -137,8 +140,10 @@ def _least_multiplier_scalar(a: float, weight: float, centre: float, low: float,
     """``least_multiplier`` for one multiplier, in plain floats (the root's coordinate descent)."""
     x = low
     for _ in range(NEWTON_STEPS):
-        moved = min(max(x - (-2.0 * a / x**3 + 2.0 * weight * (x - centre)) / (6.0 * a / x**4 + 2.0 * weight), low),
-                    high)
+        curvature = 6.0 * a / x**4 + 2.0 * weight
+        if curvature == 0.0:  # no rest change and no weight: any multiplier, the lowest
+            return x
+        moved = min(max(x - (-2.0 * a / x**3 + 2.0 * weight * (x - centre)) / curvature, low), high)
         if abs(moved - x) <= 4 * EPS * x:
             return moved
         x = moved
@@ -156,7 +161,10 @@ def least_multiplier(a, weight, centre, low, high):
     slope = lambda x: -2.0 * a / x**3 + 2.0 * weight * (x - centre)  # noqa: E731
     x = low.copy()
     for _ in range(NEWTON_STEPS):
-        moved = np.maximum(np.minimum(x - slope(x) / (6.0 * a / x**4 + 2.0 * weight), high), low)
+        curvature = 6.0 * a / x**4 + 2.0 * weight  # 0 only with no rest change and no weight: keep the lowest
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.where(curvature > 0.0, slope(x) / curvature, 0.0)
+        moved = np.maximum(np.minimum(x - step, high), low)
         if np.all(np.abs(moved - x) <= 4 * EPS * x):
             return moved
         x = moved

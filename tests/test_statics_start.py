@@ -39,3 +39,11 @@ def test_least_multiplier_minimizes_its_convex_share_inside_the_box():
     assert -2 * a[0] / x[0] ** 3 + 2 * (x[0] - 1.0) == pytest.approx(0.0, abs=1e-12)
     assert x[1] == 2.0 and x[2] == 1.0  # the optimum (1.54) below the box: its bound; no rest change: the centre
     assert least_multiplier(a, weight, centre, np.array([2.0, 1.0, 1.0]), np.array([1.0, 2.0, 2.0])) is None
+
+
+def test_a_multiplier_without_weight_or_rest_change_stays_finite():
+    x = least_multiplier(np.zeros(2), np.zeros(2), np.ones(2), np.array([1.0, 3.0]), np.array([100.0, 100.0]))
+    assert np.array_equal(x, [1.0, 3.0])
+    problem = Problem(sagfree.scenes.groom(3, 40, seed=0)[1], weights={"bend_stiffness": 0.0})
+    start = alm.linear_start(problem)
+    assert np.all(np.isfinite(start)) and kkt_optimality(problem, start) <= 1e-8
