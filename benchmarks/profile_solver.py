@@ -25,6 +25,7 @@ from sagfree.formulation.problem import Problem
 
 PARTS = [
     (alm, "linear_start", "linear start (one band LU)"),
+    (alm, "statics_start", "the start at the optimum (in the linear start)"),
     (gauss_newton, "inner_solve", "Gauss-Newton inner solves (compiled: QPs, J^T J, c, J)"),
     (alm, "solve_box_qp", "MPRGP QPs outside them (least residual, Python loop)"),
     (Problem, "strand_jacobian", "Jacobian dc/dp outside them"),
