@@ -30,6 +30,7 @@ multiplier.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from sagfree.formulation.parameters import BLOCKS, CONTACT_BLOCK, REST_BLOCKS
@@ -38,7 +39,7 @@ from sagfree.linalg.band import column_norms
 
 #: coordinate-descent rounds for the root edge's rest length and the first vertex's multiplier
 ROOT_STEPS = 100
-#: Newton steps of least_multiplier (monotone from the left end; ~6 reach the rounding)
+#: Newton steps of least_multiplier_scalar (monotone from the left end; ~6 reach the rounding)
 NEWTON_STEPS = 60
 EPS = float(np.finfo(float).eps)
 
@@ -60,112 +61,102 @@ def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
     acting = column_norms(problem.strand_jacobian(layout.p0))[layout.block_mask(REST_BLOCKS)] > 0
     if int(acting.sum()) != int(problem.free.sum()):
         return None  # not square: the rest change is not the only one
-    blocks, p0, w, lower, upper = layout.blocks, layout.p0, layout.weights, layout.lower, layout.upper
-    rate, multiplier, bend = blocks["rest_length"], blocks["stretch_stiffness"], blocks["bend_stiffness"]
+    blocks = layout.blocks
     rest = np.column_stack([blocks["rest_curvature"].reshape(-1, 2), blocks["rest_twist"]])
+    p = _optimum(np.ascontiguousarray(change, dtype=float), layout.p0, layout.weights, layout.lower, layout.upper,
+                 blocks["rest_length"], blocks["stretch_stiffness"], blocks["bend_stiffness"], rest,
+                 problem.edge_lengths)
+    return p if p.size else None
+
+
+@numba.njit(cache=True)
+def _optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths):  # pragma: no cover - compiled
+    """The start of the module docstring in one compiled call (statics_start's arrays: the layout's
+    p0, weights and box, the blocks' indices, rest (S, 3) the vertices' rest entries, the edge
+    lengths l0); empty where a box admits no multiplier."""
     p = p0.copy()
-    # the acting edges (all but the root one): b = a + t
-    t = -change[rate[1:]]
-    iu, ia = rate[1:], multiplier[1:]
-    low = lower[ia] + t
-    for bound in (lower[iu], upper[iu]):  # u = -t / b inside [lower, upper]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            side = np.where(bound != 0.0, -t / bound, 0.0)
-        low = np.maximum(low, np.where(side > 0, side, 0.0))
-    b = least_multiplier(w[iu] * t**2, w[ia], p0[ia] + t, low, upper[ia] + t)
-    if b is None:
-        return None
-    p[ia], p[iu] = b - t, -t / b
-    # the vertices, their z scaled by their lbar sums; the first one with the root edge's rest length
-    lengths = problem.edge_lengths
-    unit_sums = lengths[:-1] + lengths[1:]
-    scale = (lengths[:-1] * (1 + p[rate[:-1]]) + lengths[1:] * (1 + p[rate[1:]])) / unit_sums
-    unit_z = change[rest]  # z at unit stiffness and lbar = l0
-    width = np.where(unit_z > 0, upper[rest] - p0[rest], lower[rest] - p0[rest])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        needed = np.max(np.where(unit_z != 0.0, unit_z / width, 0.0), axis=1)  # multiplier per unit sum
-    z = unit_z * scale[:, None]
-    beta = least_multiplier(np.sum(w[rest] * z**2, axis=1), w[bend], p0[bend], np.maximum(lower[bend], needed * scale),
-                            upper[bend])
-    if beta is None:
-        return None
-    root = _root_rest_length(problem, float(np.sum(w[rest[0]] * unit_z[0] ** 2)), float(needed[0]),
-                             float(lengths[1] * (1 + p[rate[1]])), float(unit_sums[0]))
-    if root is None:
-        return None
-    p[rate[0]], scale[0], beta[0] = root
-    p[bend] = beta
-    p[rest] = p0[rest] + unit_z * scale[:, None] / beta[:, None]
-    return np.clip(p, lower, upper)
-
-
-def _root_rest_length(problem: Problem, a: float, needed: float, others: float, unit: float):
-    """(u0, the first vertex's sum scale, its multiplier) minimizing the root edge's rest-length
-    term plus the first vertex's share of R, by coordinate descent: for a fixed multiplier (free or
-    on its box, where it moves with the sum) the share is quadratic in u0, and for a fixed u0 the
-    multiplier is ``least_multiplier``'s. ``others``: the rest of the first vertex's lbar sum
-    (lbar_1), ``unit``: l0_0 + l0_1, a: sum w_j z_j^2 at the unit sum, needed: its multiplier per
-    unit sum that keeps the rest shape in its box."""
-    layout = problem.layout
-    w, lower, upper, p0 = layout.weights, layout.lower, layout.upper, layout.p0
-    iu, ib = layout.blocks["rest_length"][0], layout.blocks["bend_stiffness"][0]
-    l0 = problem.edge_lengths[0]
-    wu, wb = w[iu], w[ib]
-    base, slope = (l0 + others) / unit, l0 / unit  # the sum scale is base + slope u0
+    for e in range(1, rate.size):  # the acting edges: b = a + t, u = -t / b
+        iu, ia = rate[e], multiplier[e]
+        t = -change[iu]
+        low = lower[ia] + t
+        for bound in (lower[iu], upper[iu]):
+            if bound != 0.0 and -t / bound > 0.0:
+                low = max(low, -t / bound)
+        high = upper[ia] + t
+        if not 0.0 < low <= high:
+            return np.empty(0)
+        b = least_multiplier_scalar(w[iu] * t * t, w[ia], p0[ia] + t, low, high)
+        p[ia], p[iu] = b - t, -t / b
+    stencils = bend.size
+    unit_z, scale, needed, beta = np.empty((stencils, 3)), np.empty(stencils), np.empty(stencils), np.empty(stencils)
+    for v in range(stencils):  # the vertices, their z scaled by their lbar sums
+        unit = lengths[v] + lengths[v + 1]
+        scale[v] = (lengths[v] * (1.0 + p[rate[v]]) + lengths[v + 1] * (1.0 + p[rate[v + 1]])) / unit
+        needed[v], a = 0.0, 0.0
+        for j in range(3):
+            i = rest[v, j]
+            z = change[i]
+            unit_z[v, j] = z
+            a += w[i] * (z * scale[v]) ** 2
+            if z != 0.0:  # the multiplier per unit sum that keeps z / k in its box
+                width = upper[i] - p0[i] if z > 0.0 else lower[i] - p0[i]
+                needed[v] = max(needed[v], z / width if width != 0.0 else np.inf)
+        ib = bend[v]
+        low = max(lower[ib], needed[v] * scale[v])
+        if not 0.0 < low <= upper[ib]:
+            return np.empty(0)
+        beta[v] = least_multiplier_scalar(a, w[ib], p0[ib], low, upper[ib])
+    # the first vertex with the root edge's rest length (coordinate descent, each step in closed form)
+    iu, ib = rate[0], bend[0]
+    a = 0.0
+    for j in range(3):
+        a += w[rest[0, j]] * unit_z[0, j] ** 2
+    unit = lengths[0] + lengths[1]
+    base, slope = (lengths[0] + lengths[1] * (1.0 + p[rate[1]])) / unit, lengths[0] / unit  # sum scale: base + slope u0
     u0 = p0[iu]
     for _ in range(ROOT_STEPS):
-        scale = base + slope * u0
-        low = max(lower[ib], needed * scale)
-        if not 0 < low <= upper[ib]:
-            return None
-        beta = _least_multiplier_scalar(a * scale**2, wb, p0[ib], low, upper[ib])
-        if beta <= low * (1 + 1e-15) and needed * scale >= lower[ib]:  # on the box: beta = needed x scale
-            # 1/2 wu u0^2 + 1/2 a / needed^2 + 1/2 wb (needed (base + slope u0) - 1)^2
-            numerator, denominator = -wb * needed * slope * (needed * base - p0[ib]), wu + wb * (needed * slope) ** 2
+        sum_scale = base + slope * u0
+        low = max(lower[ib], needed[0] * sum_scale)
+        if not 0.0 < low <= upper[ib]:
+            return np.empty(0)
+        beta[0] = least_multiplier_scalar(a * sum_scale**2, w[ib], p0[ib], low, upper[ib])
+        if beta[0] <= low * (1.0 + 1e-15) and needed[0] * sum_scale >= lower[ib]:
+            # on the box, beta = needed x scale: 1/2 wu u0^2 + 1/2 a / needed^2 + 1/2 wb (needed (base + slope u0) - 1)^2
+            numerator = -w[ib] * needed[0] * slope * (needed[0] * base - p0[ib])
+            denominator = w[iu] + w[ib] * (needed[0] * slope) ** 2
         else:  # 1/2 wu u0^2 + 1/2 a (base + slope u0)^2 / beta^2
-            numerator, denominator = -a * slope * base / beta**2, wu + a * slope**2 / beta**2
+            numerator = -a * slope * base / beta[0] ** 2
+            denominator = w[iu] + a * slope**2 / beta[0] ** 2
         if denominator == 0.0:  # the share does not depend on u0: keep it
             break
-        u_new = numerator / denominator
-        u_new = min(max(u_new, lower[iu]), upper[iu])
-        if abs(u_new - u0) <= 4 * EPS * (upper[iu] - lower[iu]):
-            u0 = u_new
+        moved = min(max(numerator / denominator, lower[iu]), upper[iu])
+        done = abs(moved - u0) <= 4.0 * EPS * (upper[iu] - lower[iu])
+        u0 = moved
+        if done:
             break
-        u0 = u_new
-    scale = base + slope * u0
-    return u0, scale, beta
+    p[iu] = u0
+    scale[0] = base + slope * u0
+    for v in range(stencils):
+        p[bend[v]] = beta[v]
+        for j in range(3):
+            p[rest[v, j]] = p0[rest[v, j]] + unit_z[v, j] * scale[v] / beta[v]
+    for k in range(p.size):
+        p[k] = min(max(p[k], lower[k]), upper[k])
+    return p
 
 
-def _least_multiplier_scalar(a: float, weight: float, centre: float, low: float, high: float) -> float:
-    """``least_multiplier`` for one multiplier, in plain floats (the root's coordinate descent)."""
+@numba.njit(cache=True)
+def least_multiplier_scalar(a, weight, centre, low, high):  # pragma: no cover - compiled
+    """argmin over x in [low, high] (0 < low <= high) of a / x^2 + weight (x - centre)^2: convex for
+    x > 0, its derivative increasing and concave, so Newton from the left end converges
+    monotonically; with neither a nor weight, the lowest x."""
     x = low
     for _ in range(NEWTON_STEPS):
         curvature = 6.0 * a / x**4 + 2.0 * weight
-        if curvature == 0.0:  # no rest change and no weight: any multiplier, the lowest
+        if curvature == 0.0:
             return x
         moved = min(max(x - (-2.0 * a / x**3 + 2.0 * weight * (x - centre)) / curvature, low), high)
-        if abs(moved - x) <= 4 * EPS * x:
-            return moved
-        x = moved
-    return x
-
-
-def least_multiplier(a, weight, centre, low, high):
-    """argmin over x in [low, high] of a / x^2 + weight (x - centre)^2, elementwise (convex for x > 0:
-    its derivative is increasing and concave, so Newton from the left end converges monotonically);
-    None where an interval is empty or not positive."""
-    a, weight, centre = (np.asarray(v, dtype=float) for v in (a, weight, centre))
-    low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
-    if np.any(~(low <= high)) or np.any(~(low > 0)):
-        return None
-    slope = lambda x: -2.0 * a / x**3 + 2.0 * weight * (x - centre)  # noqa: E731
-    x = low.copy()
-    for _ in range(NEWTON_STEPS):
-        curvature = 6.0 * a / x**4 + 2.0 * weight  # 0 only with no rest change and no weight: keep the lowest
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.where(curvature > 0.0, slope(x) / curvature, 0.0)
-        moved = np.maximum(np.minimum(x - step, high), low)
-        if np.all(np.abs(moved - x) <= 4 * EPS * x):
+        if abs(moved - x) <= 4.0 * EPS * x:
             return moved
         x = moved
     return x

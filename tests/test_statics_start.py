@@ -6,7 +6,7 @@ import sagfree
 from sagfree.contract.optimality import kkt_optimality
 from sagfree.formulation.problem import Problem
 from sagfree.solvers import alm
-from sagfree.solvers.statics_start import least_multiplier, statics_start
+from sagfree.solvers.statics_start import least_multiplier_scalar, statics_start
 
 
 @pytest.mark.parametrize("index", [0, 3, 11])
@@ -32,18 +32,23 @@ def test_the_start_needs_the_root_alone_to_hold_the_strand():
 
 
 def test_least_multiplier_minimizes_its_convex_share_inside_the_box():
-    a, weight, centre = np.array([2.0, 2.0, 0.0]), np.array([1.0, 1.0, 1.0]), np.array([1.0, 1.0, 1.0])
-    x = least_multiplier(a, weight, centre, np.array([1.0, 2.0, 0.5]), np.array([10.0, 10.0, 10.0]))
     grid = np.linspace(1.0, 10.0, 200001)
-    assert x[0] == pytest.approx(grid[np.argmin(a[0] / grid**2 + (grid - 1.0) ** 2)], abs=1e-4)
-    assert -2 * a[0] / x[0] ** 3 + 2 * (x[0] - 1.0) == pytest.approx(0.0, abs=1e-12)
-    assert x[1] == 2.0 and x[2] == 1.0  # the optimum (1.54) below the box: its bound; no rest change: the centre
-    assert least_multiplier(a, weight, centre, np.array([2.0, 1.0, 1.0]), np.array([1.0, 2.0, 2.0])) is None
+    x = least_multiplier_scalar(2.0, 1.0, 1.0, 1.0, 10.0)
+    assert x == pytest.approx(grid[np.argmin(2.0 / grid**2 + (grid - 1.0) ** 2)], abs=1e-4)
+    assert -2 * 2.0 / x**3 + 2 * (x - 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert least_multiplier_scalar(2.0, 1.0, 1.0, 2.0, 10.0) == 2.0  # the optimum (1.54) below the box: its bound
+    assert least_multiplier_scalar(0.0, 1.0, 1.0, 0.5, 10.0) == 1.0  # no rest change: the centre
+    assert least_multiplier_scalar(0.0, 0.0, 1.0, 3.0, 100.0) == 3.0  # neither: the lowest, not NaN
 
 
-def test_a_multiplier_without_weight_or_rest_change_stays_finite():
-    x = least_multiplier(np.zeros(2), np.zeros(2), np.ones(2), np.array([1.0, 3.0]), np.array([100.0, 100.0]))
-    assert np.array_equal(x, [1.0, 3.0])
+def test_a_box_that_admits_no_multiplier_leaves_the_boxed_least_change():
+    problem = Problem(sagfree.scenes.groom(3, 40, seed=0)[1], bounds={"bend_stiffness": (1.0, 1.0001)})
+    change = np.zeros(problem.n_parameters)
+    change[problem.blocks["rest_curvature"]] = 1e3  # no multiplier up to 1.0001 brings it into its box
+    assert statics_start(problem, change) is None
+
+
+def test_a_multiplier_without_weight_stays_finite():
     problem = Problem(sagfree.scenes.groom(3, 40, seed=0)[1], weights={"bend_stiffness": 0.0})
     start = alm.linear_start(problem)
     assert np.all(np.isfinite(start)) and kkt_optimality(problem, start) <= 1e-8
