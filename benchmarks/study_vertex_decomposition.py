@@ -14,11 +14,12 @@ twist), so U^T D z = s_v fixes z = beta delta, and the vertex's share of R is
 sum_j w_j (z_j / beta)^2 / 2 + w_beta (beta - 1)^2 / 2: convex in beta > 0, minimized on the interval
 of multipliers whose delta = z / beta stays in its box. This script takes asc's edge parameters
 (rest lengths and stretch multipliers), solves every vertex that way (a 3 x 3 solve and a scalar
-root), and compares with asc's optimum: R, p and |c|_inf, and the time of both. The edges are not
+root), and compares with the optimum asc reaches by Gauss-Newton (``start="linear"``; its default start
+is solvers.statics_start, built on this): R, p and |c|_inf, and the time of both. The edges are not
 separable this way: the rest lengths enter the bend energy's 1 / (lbar_{i-1} + lbar_i), and asc
-uses them as a cheap stiffener (the root edge at its -5% bound), so the remaining problem couples
-neighbouring vertices through the edges' rest lengths: a chain in ~2n unknowns (benchmarks/RESULTS.md,
-twelfth session).
+uses them as a cheap stiffener (the root edge at its -5% bound); the interior edges' rest lengths
+are held to ~1e-8 by their stretch forces, so only the root edge's joins its vertex
+(solvers.statics_start; benchmarks/RESULTS.md, twelfth session).
 """
 from __future__ import annotations
 
@@ -26,12 +27,12 @@ import argparse
 import time
 
 import numpy as np
-from scipy.optimize import brentq
 
 import sagfree
 from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
 from sagfree.solvers import alm
+from sagfree.solvers.statics_start import least_multiplier_scalar
 
 #: slots of energies.VERTEX_PHYSICAL: rest curvature (2), rest twist, bend and twist moduli
 REST_SLOTS, BEND_SLOT, TWIST_SLOT = (2, 3, 4), 5, 6
@@ -64,16 +65,6 @@ def effective_stresses(problem: Problem):
     return directions, stresses[:3 * stencils].reshape(stencils, 3), stresses[3 * stencils:], ranks
 
 
-def least_multiplier(a: float, weight: float, low: float, high: float) -> float:
-    """argmin over beta in [low, high] of a / beta^2 + weight (beta - 1)^2 (convex for beta > 0)."""
-    slope = lambda beta: -2.0 * a / beta**3 + 2.0 * weight * (beta - 1.0)  # noqa: E731
-    if slope(low) >= 0.0:
-        return low
-    if slope(high) <= 0.0:
-        return high
-    return brentq(slope, low, high, xtol=1e-15, rtol=4 * np.finfo(float).eps)
-
-
 def vertices_given_edges(problem: Problem, p_edges: np.ndarray, statics) -> np.ndarray:
     """p with the edge entries of ``p_edges`` and every vertex's entries solved as the module
     docstring says (element stiffness, twist coupled to bend); statics: ``effective_stresses``."""
@@ -94,7 +85,7 @@ def vertices_given_edges(problem: Problem, p_edges: np.ndarray, statics) -> np.n
         for zj, j in zip(z, rest):  # delta = z / beta inside its box
             if zj != 0.0:
                 low = max(low, zj / ((upper[j] if zj > 0 else lower[j]) - p0[j]))
-        beta = least_multiplier(float(np.sum(w[rest] * z**2)), w[bend], low, upper[bend])
+        beta = least_multiplier_scalar(float(np.sum(w[rest] * z**2)), w[bend], p0[bend], low, upper[bend])
         p[bend], p[rest] = beta, p0[rest] + z / beta
     return p
 
@@ -105,12 +96,12 @@ def main() -> None:
     parser.add_argument("--vertices", type=int, default=100)
     args = parser.parse_args()
     strands = sagfree.scenes.groom(args.strands, args.vertices, seed=0)
-    alm.solve_alm(Problem(strands[0], stabilize=False))  # load the compiled kernels first
+    alm.solve_alm(Problem(strands[0], stabilize=False), start="linear")  # load the compiled kernels first
     ranks, relative, moved, violation, times = [], [], [], [], {"asc": 0.0, "decomposed": 0.0}
     for strand in strands:
         problem = Problem(strand, stabilize=False)
         start = time.perf_counter()
-        reference = alm.solve_alm(problem)
+        reference = alm.solve_alm(problem, start="linear")
         times["asc"] += time.perf_counter() - start
         start = time.perf_counter()
         statics = effective_stresses(problem)

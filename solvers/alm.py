@@ -19,9 +19,9 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     e = -H_F^-1 mu J^T r on the QP's free variables, r = c(p + d) - c - J d the error of the
     linearization (gauss_newton.corrected_trial; one band Cholesky; counted as ``corrected`` when
     taken). Gauss-Newton's straight step leaves the curved valley of the bilinear products stiffness
-    x (kbar - kappa*) along which the optimum trades (the Maratos effect), and the halvings crawled:
-    on 25-vertex groom strands 6.2 Gauss-Newton steps and 12.8 trial points per strand without the
-    correction, 3.9 and 4.3 with it, the same optima. The whole inner solve is
+    x (kbar - kappa*) along which the optimum trades (the Maratos effect), and the halvings crawled
+    (on 25-vertex groom strands the correction took the Gauss-Newton steps from 6.2 to 3.9 per
+    strand, to the same optima). The whole inner solve is
     one compiled call where the model is compiled (solvers.gauss_newton); _inner_solve_python is
     the same loop step for step, for the rest (no C compiler, strands on bodies).
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,

@@ -58,15 +58,21 @@ def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
     if not applies(problem):
         return None
     layout = problem.layout
-    acting = column_norms(problem.strand_jacobian(layout.p0))[layout.block_mask(REST_BLOCKS)] > 0
-    if int(acting.sum()) != int(problem.free.sum()):
-        return None  # not square: the rest change is not the only one
+    if not problem.bound_independent("square rest system", lambda: _square_rest_system(problem)):
+        return None  # the rest change is not the only one
     blocks = layout.blocks
     rest = np.column_stack([blocks["rest_curvature"].reshape(-1, 2), blocks["rest_twist"]])
     p = _optimum(np.ascontiguousarray(change, dtype=float), layout.p0, layout.weights, layout.lower, layout.upper,
                  blocks["rest_length"], blocks["stretch_stiffness"], blocks["bend_stiffness"], rest,
                  problem.edge_lengths)
     return p if p.size else None
+
+
+def _square_rest_system(problem: Problem) -> bool:
+    """True where the rest blocks' columns of dc/dp at p0 that act on a free DOF are as many as the
+    free DOFs (the module docstring's square system)."""
+    acting = column_norms(problem.strand_jacobian(problem.layout.p0))[problem.layout.block_mask(REST_BLOCKS)] > 0
+    return int(acting.sum()) == int(problem.free.sum())
 
 
 @numba.njit(cache=True)

@@ -103,9 +103,9 @@ def test_an_unknown_preconditioner_is_refused_by_name():
 
 
 def test_a_crawl_along_the_bilinear_valley_ends_with_the_corrected_full_step_in_both_loops(monkeypatch):
-    """groom(60, 25, seed=0)[58]: halving Gauss-Newton's straight steps along the valley of
-    stiffness x (kbar - kappa*) took 30 steps and 146 trial points (an inner solve's cap); with the
-    full step's second-order correction, 3 and 4."""
+    """A strand whose halved Gauss-Newton steps crawled along the valley of stiffness x (kbar -
+    kappa*) up to an inner solve's cap of 30 steps: with the full step's second-order correction it
+    needs a few."""
     problem = Problem(sagfree.scenes.groom(60, 25, seed=0)[58])
     compiled, python = solved_both_ways(monkeypatch, problem, start="linear")
     assert compiled.status == "converged" and compiled.iterations["corrected"] > 0

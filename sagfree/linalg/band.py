@@ -185,7 +185,7 @@ def _accumulate_gram(indptr, indices, data, nb, scale, columns, border, corner):
 
 #: The default model's band widths (rows of the band storage), for the kernels that run with the
 #: width a compile-time constant (the length of these tuples: loops unrolled and vectorized, 1.6x
-#: faster on a 100-vertex strand's Gauss-Newton Hessian, 1.4-1.7x its band Cholesky): the
+#: faster on a 100-vertex strand's Gauss-Newton Hessian): the
 #: Gauss-Newton band with per-element stiffness (19) and strand stiffness (13), the free DOFs'
 #: Hessian and the row-space normal matrix (11). Other widths take the general loops, the same
 #: arithmetic.
