@@ -27,8 +27,10 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
     stiffened where it leaves the boxes (linear_start), with least-squares multipliers. For a strand
     held by its root alone that change is the only balancing one, and each element's multiplier is
-    chosen as the optimum's (solvers.statics_start): the start is the optimum, and the outer loop
-    only confirms it (its KKT check) or polishes it. With bodies,
+    chosen as the optimum's (solvers.statics_start): the start is the optimum. A start with
+    |c|_inf <= tol is confirmed at once by the KKT distance (below), before any multiplier
+    estimate or outer iteration (``outer`` = 0): for a root-held groom strand that check is
+    usually all that is left of its solve. Where it fails, the outer loop polishes. With bodies,
     from p0: the same step with the supports (clipped at zero where it pulled) left the rest shape
     to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
     Lagrangian then lost feasibility from it. With a pinned tip, from p0 too: from the linear start
@@ -114,6 +116,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import spread_rest_change, stiffest
 from sagfree.linalg.band import column_norms, gram
 from sagfree.linalg.saddle import SaddleFactor, constrained_step
+from sagfree.linalg.square import square_column_solve
 from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
 from . import gauss_newton
@@ -121,7 +124,7 @@ from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, 
                            MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
-from .statics_start import statics_start
+from .statics_start import square_rest_system, statics_start
 
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
 MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
@@ -207,6 +210,20 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     mu, omega = _initial_penalty(mu0, problem.objective(p), c), omega0
     scale = gradient_scale(model.w, J)
     lam = np.zeros(int(problem.free.sum()))
+
+    def finish(status, message):
+        return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
+
+    def converged_at(violation, distance):
+        return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance {distance:.2e} <= "
+                      f"{kkt_tol:g} after {counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
+
+    violation = float(np.abs(c).max(initial=0.0))
+    if violation <= tol:  # the start at the optimum (statics_start) or a p_start at one: confirmed at once
+        distance = kkt_optimality(problem, p)
+        if distance <= kkt_tol:
+            history.append(violation)
+            return converged_at(violation, distance)
     if history:  # started from the linear start: its least-squares multipliers (linear_start)
         estimate = least_squares_multipliers(model.w * (p - model.p0), J, scale, p, lower, upper)
         lam = estimate if np.all(np.isfinite(estimate)) else lam
@@ -215,9 +232,6 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     at_lower, at_upper = p <= lower, p >= upper
     nearby = None  # the last SQP step's factorization while p is its point (kkt_optimality)
     compiled = gauss_newton.available(problem)
-
-    def finish(status, message):
-        return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
 
     while counts["outer"] < max_outer:
         counts["outer"] += 1
@@ -298,9 +312,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                 history.append(violation)
                 converged = True
         if converged:
-            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance {distance:.2e} <= "
-                          f"{kkt_tol:g} after "
-                          f"{counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
+            return converged_at(violation, distance)
         if stalls:
             mu *= mu_growth
             if mu >= 1e4 * mu0:
@@ -597,19 +609,29 @@ def linear_start(problem: Problem, optimal: bool = True) -> np.ndarray | None:
     boxes bind, starts stiffened, at |c|_inf ~1e-4 to 1e-3 with R within a few percent of the
     optimum; a start from the strand-stiffness solution (supplement section V) cost more than half of
     a strand's Gauss-Newton steps. For a strand held by its root alone that step is the only rest
-    change that balances gravity, and with ``optimal`` each element's multiplier is then chosen as
-    the optimum's (solvers.statics_start): the start is the optimum, which the outer loop only
-    confirms.
+    change that balances gravity (the unique solution of a square band system, _least_rest_change),
+    and with ``optimal`` each element's multiplier is then chosen as the optimum's
+    (solvers.statics_start): the start is the optimum, which solve_alm only confirms.
     """
-    layout = problem.layout
-    rest = layout.block_mask(REST_BLOCKS)
-    step = problem.bound_independent("least rest change", lambda: constrained_step(
-        problem.strand_jacobian(layout.p0), layout.weights, np.zeros(problem.n_parameters), problem.residual(layout.p0),
-        rest))
-    if step is None or not np.all(np.isfinite(step[0])):
+    change = problem.bound_independent("least rest change", lambda: _least_rest_change(problem))
+    if change is None:
         return None
-    optimum = statics_start(problem, step[0]) if optimal else None  # held by its root alone: the optimum
-    return optimum if optimum is not None else spread_rest_change(problem, step[0])
+    optimum = statics_start(problem, change) if optimal else None  # held by its root alone: the optimum
+    return optimum if optimum is not None else spread_rest_change(problem, change)
+
+
+def _least_rest_change(problem: Problem) -> np.ndarray | None:
+    """linear_start's step d (None where its system is singular): where the rest columns that act
+    are square (statics_start.square_rest_system) d is the unique solution of J_R d = -c(p0), one
+    band LU of J_R (linalg.square); elsewhere the saddle system of the least diag(w)-norm change."""
+    layout = problem.layout
+    J, c = problem.strand_jacobian(layout.p0), problem.residual(layout.p0)
+    if square_rest_system(problem):
+        change = square_column_solve(J, layout.block_mask(REST_BLOCKS) & (column_norms(J) > 0), -c)
+        if change is not None:
+            return change
+    step = constrained_step(J, layout.weights, np.zeros(problem.n_parameters), c, layout.block_mask(REST_BLOCKS))
+    return step[0] if step is not None and np.all(np.isfinite(step[0])) else None
 
 
 #: weight of R against 1/2 |c|^2 in the best-effort phase: a tie-break among least-residual points

@@ -6,7 +6,7 @@ stresses are linear in z divided by lbar_{i-1} + lbar_i, and k u / (1 + u) for a
 strand held by its root alone the rest blocks' columns of dc/dp at p0 form a square system (the
 root edge's rest length acts on no free DOF; a vertex's 5 kinematics move in only 3 directions,
 benchmarks/study_vertex_decomposition.py), so the linear start's least rest change at unit
-stiffness (alm.linear_start) is the only one: it fixes every vertex's z and every edge's stretch
+stiffness (alm.linear_start; one band LU of that square system, linalg.square) is the only one: it fixes every vertex's z and every edge's stretch
 force, whatever the multipliers. The parameter problem then falls apart into convex problems in one
 multiplier each:
 
@@ -58,7 +58,7 @@ def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
     if not applies(problem):
         return None
     layout = problem.layout
-    if not problem.bound_independent("square rest system", lambda: _square_rest_system(problem)):
+    if not square_rest_system(problem):
         return None  # the rest change is not the only one
     blocks = layout.blocks
     rest = np.column_stack([blocks["rest_curvature"].reshape(-1, 2), blocks["rest_twist"]])
@@ -68,9 +68,14 @@ def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
     return p if p.size else None
 
 
-def _square_rest_system(problem: Problem) -> bool:
-    """True where the rest blocks' columns of dc/dp at p0 that act on a free DOF are as many as the
-    free DOFs (the module docstring's square system)."""
+def square_rest_system(problem: Problem) -> bool:
+    """True where the module's decomposition applies (``applies``) and the rest blocks' columns of
+    dc/dp at p0 that act on a free DOF are as many as the free DOFs (the module docstring's square
+    system); checked once per strand (Problem.bound_independent)."""
+    return applies(problem) and problem.bound_independent("square rest system", lambda: _square_rest_columns(problem))
+
+
+def _square_rest_columns(problem: Problem) -> bool:
     acting = column_norms(problem.strand_jacobian(problem.layout.p0))[problem.layout.block_mask(REST_BLOCKS)] > 0
     return int(acting.sum()) == int(problem.free.sum())
 

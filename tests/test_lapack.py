@@ -37,3 +37,23 @@ def test_singular_band_reports_its_zero_pivot(rng):
     columns = np.ascontiguousarray(band.T)
     info = lapack.band_lu(lapack.DGBTRF, columns, 2, 2, np.empty(10, dtype=np.int32))
     assert info == scipy.linalg.lapack.dgbtrf(band.copy(), 2, 2)[2] == 5  # 1-based: column 5
+
+
+def test_square_column_solve_solves_the_chosen_columns_or_says_none(rng):
+    import scipy.sparse as sp
+
+    from sagfree.linalg.square import square_column_solve
+
+    dense, _ = _band_system(rng, 30, 3, 4)
+    wide = np.zeros((30, 45))
+    kept = np.zeros(45, dtype=bool)
+    kept[::3] = kept[1::3] = True  # 30 of 45 columns, in order: still a band
+    wide[:, kept] = dense
+    wide[:, ~kept] = rng.standard_normal((30, 15))
+    rhs = rng.standard_normal(30)
+    x = square_column_solve(sp.csc_matrix(wide), kept, rhs)
+    assert np.all(x[~kept] == 0.0) and np.abs(wide @ x - rhs).max() <= 1e-10 * np.abs(rhs).max()
+    assert square_column_solve(sp.csc_matrix(wide), kept & (np.arange(45) > 0), rhs) is None  # 29 columns
+    singular = wide.copy()
+    singular[:, np.flatnonzero(kept)[7]] = 0.0
+    assert square_column_solve(sp.csc_matrix(singular), kept, rhs) is None

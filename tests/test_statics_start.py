@@ -23,6 +23,30 @@ def test_the_start_of_a_root_held_strand_is_the_optimum_gauss_newton_reaches(ind
     assert started.status == "converged" and started.iterations["gauss_newton"] <= 1
 
 
+@pytest.mark.parametrize("vertices", [3, 25, 100])
+def test_the_square_rest_system_gives_the_saddle_systems_least_change(vertices):
+    from sagfree.formulation.parameters import REST_BLOCKS
+    from sagfree.linalg.saddle import constrained_step
+
+    for strand in sagfree.scenes.groom(4, vertices, seed=1):
+        problem = Problem(strand)
+        layout = problem.layout
+        J, c = problem.strand_jacobian(layout.p0), problem.residual(layout.p0)
+        least, _ = constrained_step(J, layout.weights, np.zeros(problem.n_parameters), c,
+                                    layout.block_mask(REST_BLOCKS))
+        unique = alm._least_rest_change(problem)  # the band LU of J_R, where the system is square
+        assert np.abs(unique - least).max() <= 1e-9 * np.abs(least).max()
+        assert np.abs(J @ unique + c).max() <= 1e-9
+
+
+def test_a_start_at_the_optimum_is_confirmed_without_an_outer_iteration():
+    problem = Problem(sagfree.scenes.groom(3, 60, seed=0)[1], stabilize=False)
+    result = alm.solve_alm(problem)
+    assert result.status == "converged" and result.iterations["outer"] == 0
+    assert kkt_optimality(problem, result.p) <= 1e-5
+    assert alm.solve_alm(problem, start="linear").iterations["outer"] >= 1  # elsewhere the loop runs
+
+
 def test_the_start_needs_the_root_alone_to_hold_the_strand():
     strand = sagfree.scenes.horizontal(40)
     change = np.zeros(Problem(strand).n_parameters)
