@@ -17,7 +17,10 @@ multiplier each:
   convex in k (the twist modulus follows the bend multiplier);
 - every box is an interval of the multiplier (delta = z / k and u inside their boxes);
 - the root edge's rest length is free but for the first vertex's lbar_0 + lbar_1, a cheap stiffener
-  there (asc moves it to its bound): chosen jointly with that vertex's multiplier.
+  there (asc moves it to its bound): chosen jointly with that vertex's multiplier by coordinate
+  descent, each step kept where the vertex's rest change stays inside its box (a stiffness floor
+  can hold the multiplier above what the box needs, and a free step of the rest length then
+  carried the change out of it).
 
 The interior edges' rest lengths (~1e-8, the strain that holds gravity) scale their vertices' z
 through the lbar sums: taken into account, but not in the edges' own choice, so the start is the
@@ -131,18 +134,28 @@ def _optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
         if not 0.0 < low <= upper[ib]:
             return np.empty(0)
         beta[0] = least_multiplier_scalar(a * sum_scale**2, w[ib], p0[ib], low, upper[ib])
-        if beta[0] <= low * (1.0 + 1e-15) and needed[0] * sum_scale >= lower[ib]:
-            # on the box, beta = needed x scale: 1/2 wu u0^2 + 1/2 a / needed^2 + 1/2 wb (needed (base + slope u0) - 1)^2
+        on_rest_box = beta[0] <= low * (1.0 + 1e-15) and needed[0] * sum_scale >= lower[ib]
+        # each step keeps the vertex's rest change delta = z (base + slope u0) / beta inside its box,
+        # beta >= needed (base + slope u0), and beta inside its own (a floor may hold it above needed)
+        if on_rest_box:
+            # beta = needed x scale: 1/2 wu u0^2 + 1/2 a / needed^2 + 1/2 wb (needed (base + slope u0) - 1)^2
             numerator = -w[ib] * needed[0] * slope * (needed[0] * base - p0[ib])
             denominator = w[iu] + w[ib] * (needed[0] * slope) ** 2
-        else:  # 1/2 wu u0^2 + 1/2 a (base + slope u0)^2 / beta^2
+            least = max(lower[iu], (lower[ib] / needed[0] - base) / slope)
+            most = min(upper[iu], (upper[ib] / needed[0] - base) / slope)
+        else:  # beta fixed: 1/2 wu u0^2 + 1/2 a (base + slope u0)^2 / beta^2
             numerator = -a * slope * base / beta[0] ** 2
             denominator = w[iu] + a * slope**2 / beta[0] ** 2
+            least, most = lower[iu], upper[iu]
+            if needed[0] > 0.0:
+                most = min(most, (beta[0] / needed[0] - base) / slope)
         if denominator == 0.0:  # the share does not depend on u0: keep it
             break
-        moved = min(max(numerator / denominator, lower[iu]), upper[iu])
+        moved = min(max(numerator / denominator, least), most)
         done = abs(moved - u0) <= 4.0 * EPS * (upper[iu] - lower[iu])
         u0 = moved
+        if on_rest_box:
+            beta[0] = needed[0] * (base + slope * u0)
         if done:
             break
     p[iu] = u0

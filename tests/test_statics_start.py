@@ -47,6 +47,20 @@ def test_a_start_at_the_optimum_is_confirmed_without_an_outer_iteration():
     assert alm.solve_alm(problem, start="linear").iterations["outer"] >= 1  # elsewhere the loop runs
 
 
+def test_the_start_under_stiffness_floors_is_the_floored_optimum():
+    # floors hold the first vertex's multiplier above what its rest box needs: the root edge's rest
+    # length must then keep that vertex's rest change inside its box (it oscillated out of it, and
+    # the clipped start left |c|_inf = 40 for Gauss-Newton to repair)
+    from sagfree.frontend.stabilize import floors_loop
+
+    problem = Problem(sagfree.scenes.groom(60, 100, seed=0)[8])
+    floored, result, rounds, verdict = floors_loop(alm.solve_alm, problem, {})
+    assert rounds >= 1 and verdict is None
+    start = alm.linear_start(floored)
+    assert np.abs(floored.residual(start)).max() <= 1e-10 and kkt_optimality(floored, start) <= 1e-8
+    assert result.iterations["gauss_newton"] == 0 and floored.objective(start) == pytest.approx(result.objective)
+
+
 def test_the_start_needs_the_root_alone_to_hold_the_strand():
     strand = sagfree.scenes.horizontal(40)
     change = np.zeros(Problem(strand).n_parameters)
