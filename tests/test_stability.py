@@ -177,7 +177,9 @@ def test_best_effort_for_a_strand_the_boxes_cannot_balance(long_strand):
     free = problem.free_index
     hessian = problem.hessian(result.p, rests[0].q, rests[0].frames).toarray()[np.ix_(free, free)]
     mass = np.diag(problem.dof_masses[free])
-    assert scipy.linalg.eigh(hessian, mass, eigvals_only=True)[0] == pytest.approx(result.min_eigenvalue, rel=1e-6)
+    spectrum = scipy.linalg.eigh(hessian, mass, eigvals_only=True)
+    # both solvers resolve lambda_min only to ~eps lambda_max (1.4e12 s^-2 here: 3e-4 s^-2, 1e-5 of it)
+    assert spectrum[0] == pytest.approx(result.min_eigenvalue, abs=10 * np.finfo(float).eps * spectrum[-1])
     assert result.min_eigenvalue >= problem.stability_margin
 
 
