@@ -98,7 +98,7 @@ def test_default_groom_results_unchanged_by_the_layout():
     stored anew when the problem itself changed: the regularizer's length shares and the stability
     floors; and when asc's method did: the crawl test of its inner solves, Newton-SQP after one
     crawling round, stiffness floors checked by restiffening, the start at the optimum of a root-held
-    strand). The tolerance is 1e-6 of the largest
+    strand, floors checked where the re-solve lands). The tolerance is 1e-6 of the largest
     entry: p is reproducible only to the rounding of what leads to it, and another CPU's BLAS kernels
     (numpy's stacked products, numba's dot products) round differently: the strands' points moved
     by 4e-16 (relative) moved p by up to 2.6e-8 of the largest entry in three trials (a 1e-12 guard
