@@ -6,9 +6,9 @@ stresses are linear in z divided by lbar_{i-1} + lbar_i, and k u / (1 + u) for a
 strand held by its root alone the rest blocks' columns of dc/dp at p0 form a square system (the
 root edge's rest length acts on no free DOF; a vertex's 5 kinematics move in only 3 directions,
 benchmarks/study_vertex_decomposition.py), so the linear start's least rest change at unit
-stiffness (alm.linear_start; one band LU of that square system, linalg.square) is the only one: it fixes every vertex's z and every edge's stretch
-force, whatever the multipliers. The parameter problem then falls apart into convex problems in one
-multiplier each:
+stiffness (alm.linear_start; one band LU of that square system, linalg.square) is the only one:
+it fixes every vertex's z and every edge's stretch force, whatever the multipliers. The parameter
+problem then falls apart into convex problems in one multiplier each:
 
 - an edge with stretch force -E pi r^2 t (t = -u at unit stiffness): u = -t / (a + t) for the
   multiplier a, and its share of R is w_u t^2 / (a + t)^2 + w_a (a - 1)^2 (halved), convex in
@@ -22,9 +22,13 @@ multiplier each:
   can hold the multiplier above what the box needs, and a free step of the rest length then
   carried the change out of it).
 
-The interior edges' rest lengths (~1e-8, the strain that holds gravity) scale their vertices' z
-through the lbar sums: taken into account, but not in the edges' own choice, so the start is the
-optimum to ~1e-10 in R; asc confirms it (its KKT check) or polishes it. Against the linear start's
+The interior edges' rest lengths (the strain that holds gravity) scale their vertices' z through
+the lbar sums, so the edges and vertices are coupled: each edge's choice adds the marginal cost of
+its rest length on its two vertices' shares (their envelope derivative, a term a1 / b in its
+share: least_scalar), and edges and vertices are swept until no multiplier moves (a few sweeps).
+Near the root, where the vertices are stiffened, that cost lifts the first edges' multipliers
+~1e-5 above 1; without it the start missed the KKT tolerance there and Gauss-Newton had to take
+over. asc confirms the start (its KKT check) or polishes it. Against the linear start's
 least multipliers that fit the boxes (rest_change.spread_rest_change), the optimum stiffens every
 vertex a little where it trades stiffness for rest change. Applies to per-element stiffness with the
 twist coupled to bend, every block optimized, no bodies, a clamped root and nothing else held
@@ -42,6 +46,8 @@ from sagfree.linalg.band import column_norms
 
 #: coordinate-descent rounds for the root edge's rest length and the first vertex's multiplier
 ROOT_STEPS = 100
+#: sweeps over the edges and vertices coupled through the vertices' rest-length sums (_optimum)
+SWEEPS = 20
 #: Newton steps of least_multiplier_scalar (monotone from the left end; ~6 reach the rounding)
 NEWTON_STEPS = 60
 EPS = float(np.finfo(float).eps)
@@ -89,82 +95,66 @@ def _square_rest_columns(problem: Problem) -> bool:
 def _optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths):  # pragma: no cover - compiled
     """The start of the module docstring in one compiled call (statics_start's arrays: the layout's
     p0, weights and box, the blocks' indices, rest (S, 3) the vertices' rest entries, the edge
-    lengths l0); empty where a box admits no multiplier."""
+    lengths l0); empty where a box admits no multiplier. Sweeps (at most SWEEPS): the edges, each
+    with the marginal cost of its rest length on its two vertices' shares (``coupling``: 0 in the
+    first sweep), then the vertices at the sums those edges give, until no edge multiplier moves."""
     p = p0.copy()
-    for e in range(1, rate.size):  # the acting edges: b = a + t, u = -t / b
+    edges, stencils = rate.size, bend.size
+    t, edge_low, edge_high = np.zeros(edges), np.zeros(edges), np.zeros(edges)
+    for e in range(1, edges):  # the acting edges: b = a + t in [low, high], u = -t / b
         iu, ia = rate[e], multiplier[e]
-        t = -change[iu]
-        low = lower[ia] + t
+        t[e] = -change[iu]
+        low = lower[ia] + t[e]
         for bound in (lower[iu], upper[iu]):
-            if bound != 0.0 and -t / bound > 0.0:
-                low = max(low, -t / bound)
-        high = upper[ia] + t
-        if not 0.0 < low <= high:
+            if bound != 0.0 and -t[e] / bound > 0.0:
+                low = max(low, -t[e] / bound)
+        edge_low[e], edge_high[e] = low, upper[ia] + t[e]
+        if not 0.0 < low <= edge_high[e]:
             return np.empty(0)
-        b = least_multiplier_scalar(w[iu] * t * t, w[ia], p0[ia] + t, low, high)
-        p[ia] = onto_near_bound(b - t, lower[ia], upper[ia])
-        if p[ia] + t > 0.0:
-            b = p[ia] + t
-        p[iu] = -t / b
-    stencils = bend.size
-    unit_z, scale, needed, beta = np.empty((stencils, 3)), np.empty(stencils), np.empty(stencils), np.empty(stencils)
-    for v in range(stencils):  # the vertices, their z scaled by their lbar sums
-        unit = lengths[v] + lengths[v + 1]
-        scale[v] = (lengths[v] * (1.0 + p[rate[v]]) + lengths[v + 1] * (1.0 + p[rate[v + 1]])) / unit
-        needed[v], a = 0.0, 0.0
+    unit_z, weighted, needed = np.empty((stencils, 3)), np.zeros(stencils), np.zeros(stencils)
+    for v in range(stencils):  # each vertex's z, its share's weight sum_j w_j z_j^2, its least multiplier per unit sum
         for j in range(3):
             i = rest[v, j]
             z = change[i]
             unit_z[v, j] = z
-            a += w[i] * (z * scale[v]) ** 2
+            weighted[v] += w[i] * z * z
             if z != 0.0:  # the multiplier per unit sum that keeps z / k in its box
                 width = upper[i] - p0[i] if z > 0.0 else lower[i] - p0[i]
                 needed[v] = max(needed[v], z / width if width != 0.0 else np.inf)
-        ib = bend[v]
-        low = max(lower[ib], needed[v] * scale[v])
-        if not 0.0 < low <= upper[ib]:
+    scale, beta, slope_cost, coupling = np.empty(stencils), np.empty(stencils), np.empty(stencils), np.zeros(edges)
+    for sweep in range(SWEEPS):
+        moved_most = 0.0
+        for e in range(1, edges):
+            iu, ia = rate[e], multiplier[e]
+            b = least_scalar(w[iu] * t[e] * t[e], -2.0 * coupling[e] * t[e], w[ia], p0[ia] + t[e], edge_low[e],
+                             edge_high[e])
+            moved_most = max(moved_most, abs(b - t[e] - p[ia]) / max(1.0, abs(p[ia])))
+            p[ia], p[iu] = b - t[e], -t[e] / b
+        for v in range(1, stencils):  # the vertices, their z scaled by their lbar sums
+            ib = bend[v]
+            scale[v] = (lengths[v] * (1.0 + p[rate[v]]) + lengths[v + 1] * (1.0 + p[rate[v + 1]])) / (
+                lengths[v] + lengths[v + 1])
+            low = max(lower[ib], needed[v] * scale[v])
+            if not 0.0 < low <= upper[ib]:
+                return np.empty(0)
+            beta[v] = least_multiplier_scalar(weighted[v] * scale[v] ** 2, w[ib], p0[ib], low, upper[ib])
+        if not _root_vertex(p, w, lower, upper, p0, rate[0], bend[0], lengths, weighted[0], needed[0],
+                            p[rate[1]], scale, beta):
             return np.empty(0)
-        beta[v] = least_multiplier_scalar(a, w[ib], p0[ib], low, upper[ib])
-    # the first vertex with the root edge's rest length (coordinate descent, each step in closed form)
-    iu, ib = rate[0], bend[0]
-    a = 0.0
-    for j in range(3):
-        a += w[rest[0, j]] * unit_z[0, j] ** 2
-    unit = lengths[0] + lengths[1]
-    base, slope = (lengths[0] + lengths[1] * (1.0 + p[rate[1]])) / unit, lengths[0] / unit  # sum scale: base + slope u0
-    u0 = p0[iu]
-    for _ in range(ROOT_STEPS):
-        sum_scale = base + slope * u0
-        low = max(lower[ib], needed[0] * sum_scale)
-        if not 0.0 < low <= upper[ib]:
-            return np.empty(0)
-        beta[0] = least_multiplier_scalar(a * sum_scale**2, w[ib], p0[ib], low, upper[ib])
-        on_rest_box = beta[0] <= low * (1.0 + 1e-15) and needed[0] * sum_scale >= lower[ib]
-        # each step keeps the vertex's rest change delta = z (base + slope u0) / beta inside its box,
-        # beta >= needed (base + slope u0), and beta inside its own (a floor may hold it above needed)
-        if on_rest_box:
-            # beta = needed x scale: 1/2 wu u0^2 + 1/2 a / needed^2 + 1/2 wb (needed (base + slope u0) - 1)^2
-            numerator = -w[ib] * needed[0] * slope * (needed[0] * base - p0[ib])
-            denominator = w[iu] + w[ib] * (needed[0] * slope) ** 2
-            least = max(lower[iu], (lower[ib] / needed[0] - base) / slope)
-            most = min(upper[iu], (upper[ib] / needed[0] - base) / slope)
-        else:  # beta fixed: 1/2 wu u0^2 + 1/2 a (base + slope u0)^2 / beta^2
-            numerator = -a * slope * base / beta[0] ** 2
-            denominator = w[iu] + a * slope**2 / beta[0] ** 2
-            least, most = lower[iu], upper[iu]
-            if needed[0] > 0.0:
-                most = min(most, (beta[0] / needed[0] - base) / slope)
-        if denominator == 0.0:  # the share does not depend on u0: keep it
+        if sweep > 0 and moved_most <= 4.0 * EPS:
             break
-        moved = min(max(numerator / denominator, least), most)
-        done = abs(moved - u0) <= 4.0 * EPS * (upper[iu] - lower[iu])
-        u0 = moved
-        if on_rest_box:
-            beta[0] = needed[0] * (base + slope * u0)
-        if done:
-            break
-    p[iu] = u0
-    scale[0] = base + slope * u0
+        # d(share_v)/d(sum scale): the envelope of each vertex's choice; on its rest box beta = needed x scale
+        for v in range(stencils):
+            ib = bend[v]
+            if beta[v] <= needed[v] * scale[v] * (1.0 + 1e-15) and needed[v] * scale[v] >= lower[ib]:
+                slope_cost[v] = w[ib] * needed[v] * (needed[v] * scale[v] - p0[ib])
+            else:
+                slope_cost[v] = weighted[v] * scale[v] / beta[v] ** 2
+        for e in range(1, edges):  # edge e sits in the sums of vertices e - 1 and e
+            coupling[e] = 0.0
+            for v in (e - 1, e):
+                if v < stencils:
+                    coupling[e] += slope_cost[v] * lengths[e] / (lengths[v] + lengths[v + 1])
     for v in range(stencils):
         ib = bend[v]
         if needed[v] * scale[v] <= lower[ib]:  # not held up by the rest box: a bound keeps delta inside it
@@ -176,6 +166,88 @@ def _optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
     for k in range(p.size):
         p[k] = min(max(p[k], lower[k]), upper[k])
     return p
+
+
+@numba.njit(cache=True)
+def _root_vertex(p, w, lower, upper, p0, iu, ib, lengths, weighted, needed, u1, scale, beta):  # pragma: no cover
+    """The first vertex's multiplier beta[0] and the root edge's rest length p[iu] (its sum scale
+    into scale[0]) by coordinate descent, each step in closed form (module docstring); False where
+    a box admits no multiplier."""
+    unit = lengths[0] + lengths[1]
+    base, slope = (lengths[0] + lengths[1] * (1.0 + u1)) / unit, lengths[0] / unit  # sum scale: base + slope u0
+    u0 = p0[iu]
+    for _ in range(ROOT_STEPS):
+        sum_scale = base + slope * u0
+        low = max(lower[ib], needed * sum_scale)
+        if not 0.0 < low <= upper[ib]:
+            return False
+        beta[0] = least_multiplier_scalar(weighted * sum_scale**2, w[ib], p0[ib], low, upper[ib])
+        on_rest_box = beta[0] <= low * (1.0 + 1e-15) and needed * sum_scale >= lower[ib]
+        # each step keeps the vertex's rest change delta = z (base + slope u0) / beta inside its box,
+        # beta >= needed (base + slope u0), and beta inside its own (a floor may hold it above needed)
+        if on_rest_box:
+            # beta = needed x scale: 1/2 wu u0^2 + 1/2 a / needed^2 + 1/2 wb (needed (base + slope u0) - 1)^2
+            numerator = -w[ib] * needed * slope * (needed * base - p0[ib])
+            denominator = w[iu] + w[ib] * (needed * slope) ** 2
+            least = max(lower[iu], (lower[ib] / needed - base) / slope)
+            most = min(upper[iu], (upper[ib] / needed - base) / slope)
+        else:  # beta fixed: 1/2 wu u0^2 + 1/2 a (base + slope u0)^2 / beta^2
+            numerator = -weighted * slope * base / beta[0] ** 2
+            denominator = w[iu] + weighted * slope**2 / beta[0] ** 2
+            least, most = lower[iu], upper[iu]
+            if needed > 0.0:
+                most = min(most, (beta[0] / needed - base) / slope)
+        if denominator == 0.0:  # the share does not depend on u0: keep it
+            break
+        moved = min(max(numerator / denominator, least), most)
+        done = abs(moved - u0) <= 4.0 * EPS * (upper[iu] - lower[iu])
+        u0 = moved
+        if on_rest_box:
+            beta[0] = needed * (base + slope * u0)
+        if done:
+            break
+    p[iu] = u0
+    scale[0] = base + slope * u0
+    return True
+
+
+@numba.njit(cache=True)
+def least_scalar(a2, a1, weight, centre, low, high):  # pragma: no cover - compiled
+    """argmin over x in [low, high] (0 < low <= high) of F(x) = a2 / x^2 + a1 / x + weight (x - centre)^2
+    (an edge's share with the marginal cost of its rest length on its vertices, a1): Newton on F'
+    kept inside a bracket of its sign change (bisection where it leaves it), the endpoints compared
+    where F' does not change sign or F might not be convex; least_multiplier_scalar where a1 = 0."""
+    if a1 == 0.0:
+        return least_multiplier_scalar(a2, weight, centre, low, high)
+    lo, hi = low, high
+    slope_lo = -2.0 * a2 / lo**3 - a1 / lo**2 + 2.0 * weight * (lo - centre)
+    slope_hi = -2.0 * a2 / hi**3 - a1 / hi**2 + 2.0 * weight * (hi - centre)
+    if slope_lo >= 0.0:
+        x = lo
+    elif slope_hi <= 0.0:
+        x = hi
+    else:
+        x = lo
+        for _ in range(4 * NEWTON_STEPS):
+            slope = -2.0 * a2 / x**3 - a1 / x**2 + 2.0 * weight * (x - centre)
+            if slope < 0.0:
+                lo = x
+            else:
+                hi = x
+            curvature = 6.0 * a2 / x**4 + 2.0 * a1 / x**3 + 2.0 * weight
+            moved = x - slope / curvature if curvature > 0.0 else 0.5 * (lo + hi)
+            if not lo <= moved <= hi:
+                moved = 0.5 * (lo + hi)
+            if abs(moved - x) <= 4.0 * EPS * x:
+                x = moved
+                break
+            x = moved
+    best, value = x, a2 / x**2 + a1 / x + weight * (x - centre) ** 2
+    for end in (low, high):
+        end_value = a2 / end**2 + a1 / end + weight * (end - centre) ** 2
+        if end_value < value:
+            best, value = end, end_value
+    return best
 
 
 @numba.njit(cache=True)
