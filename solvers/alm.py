@@ -207,9 +207,6 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
     target = gradient_tol  # inner target; tightened when the KKT distance disagrees
     c, J = problem.residual(p), problem.strand_jacobian(p)
-    mu, omega = _initial_penalty(mu0, problem.objective(p), c), omega0
-    scale = gradient_scale(model.w, J)
-    lam = np.zeros(int(problem.free.sum()))
 
     def finish(status, message):
         return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock, history)
@@ -224,6 +221,9 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         if distance <= kkt_tol:
             history.append(violation)
             return converged_at(violation, distance)
+    mu, omega = _initial_penalty(mu0, problem.objective(p), c), omega0
+    scale = gradient_scale(model.w, J)
+    lam = np.zeros(int(problem.free.sum()))
     if history:  # started from the linear start: its least-squares multipliers (linear_start)
         estimate = least_squares_multipliers(model.w * (p - model.p0), J, scale, p, lower, upper)
         lam = estimate if np.all(np.isfinite(estimate)) else lam
