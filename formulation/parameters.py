@@ -122,6 +122,16 @@ def _block_values(name: str, what: str, value, shape: tuple) -> np.ndarray:
     return np.broadcast_to(values.reshape(-1) if values.size == shape[0] else values.reshape(()), shape)
 
 
+@numba.njit(cache=True)
+def _consistent(lower, upper, p0, weights):  # pragma: no cover - compiled
+    """True if every entry has finite bounds lower <= p0 <= upper and a finite weight >= 0 (NaN fails)."""
+    for j in range(p0.size):
+        if not (np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= p0[j] <= upper[j]
+                and np.isfinite(weights[j]) and weights[j] >= 0.0):
+            return False
+    return True
+
+
 @dataclass
 class SlotMap:
     """physical[k, s] = constant[k, s] + coefficient[k, s] * p[index[k, s]] where index >= 0."""
@@ -130,10 +140,15 @@ class SlotMap:
     coefficient: np.ndarray  # (stencils, slots)
     constant: np.ndarray     # (stencils, slots)
 
+    #: (flat positions of the linked slots, their entries of p, their coefficients): derived from
+    #: index and coefficient alone, so maps of one structure may share them (_slot_map)
+    links: tuple | None = None
+
     def __post_init__(self):
-        self._linked = np.flatnonzero(self.index.ravel() >= 0)  # flat positions of the linked slots
-        self._source = self.index.ravel()[self._linked]
-        self._factor = self.coefficient.ravel()[self._linked]
+        if self.links is None:
+            linked = np.flatnonzero(self.index.ravel() >= 0)
+            self.links = (linked, self.index.ravel()[linked], self.coefficient.ravel()[linked])
+        self._linked, self._source, self._factor = self.links
 
     @property
     def arrays(self) -> tuple:
@@ -165,6 +180,7 @@ class _LayoutStructure:
     edge_index: np.ndarray    # (n - 1, 2)
     vertex_index: np.ndarray  # (n - 2, 7)
     concatenated: dict = field(default_factory=dict, compare=False)  # ParameterLayout.concatenated_blocks
+    slot_coefficients: dict = field(default_factory=dict, compare=False)  # _slot_map's, by stencil kind
 
 
 @functools.lru_cache(maxsize=16)
@@ -225,15 +241,28 @@ def _layout_structure(n_vertices: int, active: tuple, strand_level: bool, couple
     return _LayoutStructure(blocks, size, edge_index, vertex_index)
 
 
-def _slot_map(index: np.ndarray, constants: list, coefficients: list) -> SlotMap:
+def _slot_map(index: np.ndarray, constants: list, coefficients: list, known: dict | None = None) -> SlotMap:
     """The SlotMap of one stencil kind: slot s of a stencil is coefficients[s] * p[index] where
-    index >= 0, else constants[s] (a scalar or one value per stencil)."""
-    linked = index >= 0
-    constant = np.empty(index.shape)
-    for slot, value in enumerate(constants):
-        constant[:, slot] = value
-    constant[linked] = 0.0
-    return SlotMap(index, np.where(linked, np.asarray(coefficients, dtype=float), 0.0), constant)
+    index >= 0, else constants[s] (a scalar or one value per stencil). ``known``: a cache of the
+    coefficient arrays by coefficients (the layout structure's: the strands of a groom share them)."""
+    key = tuple(float(c) for c in coefficients)
+    parts = None if known is None else known.get(key)
+    if parts is None:
+        linked = index >= 0
+        coefficient = np.where(linked, np.asarray(key), 0.0)
+        links = SlotMap(index, coefficient, np.zeros(index.shape)).links
+        for array in (coefficient, *links):
+            array.flags.writeable = False
+        parts = (linked, coefficient, [slot for slot in range(index.shape[1]) if not linked[:, slot].all()], links)
+        if known is not None:
+            known[key] = parts
+    linked, coefficient, constant_slots, links = parts
+    constant = np.zeros(index.shape)
+    for slot in constant_slots:  # the slots some stencil holds constant
+        constant[:, slot] = constants[slot]
+    if constant_slots:
+        constant[linked] = 0.0
+    return SlotMap(index, coefficient, constant, links)
 
 
 class ParameterLayout:
@@ -306,9 +335,10 @@ class ParameterLayout:
         # ---- physical slot maps (layouts of energies.EDGE_PHYSICAL / VERTEX_PHYSICAL) ----
         E, G = youngs_modulus, shear_modulus
         kappa0 = np.asarray(rest_curvature0, dtype=float).reshape(n_inner, 2)
-        self.edge_map = _slot_map(structure.edge_index, [0.0, E], [1.0, E])
+        known = structure.slot_coefficients
+        self.edge_map = _slot_map(structure.edge_index, [0.0, E], [1.0, E], known.setdefault("edge", {}))
         self.vertex_map = _slot_map(structure.vertex_index, [0.0, 0.0, kappa0[:, 0], kappa0[:, 1], rest_twist0, E, G],
-                                    [1.0, 1.0, 1.0, 1.0, 1.0, E, G])
+                                    [1.0, 1.0, 1.0, 1.0, 1.0, E, G], known.setdefault("vertex", {}))
 
     def _apply_user(self, bounds: dict, weights) -> None:
         for name, value in (bounds or {}).items():
@@ -329,10 +359,8 @@ class ParameterLayout:
 
     def validate(self) -> None:
         """Raise a ValueError naming the block and entry of any inconsistent bound or weight."""
-        lo, hi, p0, w = self.lower, self.upper, self.p0, self.weights
-        if np.all(np.isfinite(lo) & np.isfinite(hi) & (lo <= hi) & (p0 >= lo) & (p0 <= hi) & np.isfinite(w)
-                  & (w >= 0)):
-            return  # one pass over p; the loop below only names the first bad entry
+        if _consistent(self.lower, self.upper, self.p0, self.weights):
+            return  # one compiled pass over p; the loop below only names the first bad entry
         for name, ix in self.blocks.items():
             lo, hi, p0, w = self.lower[ix], self.upper[ix], self.p0[ix], self.weights[ix]
             checks = [

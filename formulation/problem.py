@@ -111,8 +111,10 @@ class Problem:
 
         # input geometry through the same compiled expressions as the energies, so that the strains,
         # curvature and twist differences vanish exactly at p0
-        (l0,) = self.edge_functions.geometry(self.q_star[self.edge_dofs])
-        kappa, twist = self.vertex_functions.geometry(self.q_star[self.vertex_dofs], self._reference(self.frames))
+        edge_q, vertex_q = self.q_star[self.edge_dofs], self.q_star[self.vertex_dofs]  # C-contiguous copies
+        reference = np.ascontiguousarray(self._reference(self.frames))
+        (l0,) = self.edge_functions.geometry(edge_q)
+        kappa, twist = self.vertex_functions.geometry(vertex_q, reference)
         self.edge_lengths, self.twist_star = l0, twist
         r = strand.radius
         self._edge_geometry = np.column_stack([l0, np.full(n - 1, r)])
@@ -127,7 +129,8 @@ class Problem:
                           moduli * np.pi * np.float64(r) ** 2)
         self.masses = masses
         self.external_forces = dofs.external_forces(masses, self.gravity, strand.loads)
-        self.free = dofs.free_mask(n, strand.root, strand.tip, strand.pins)
+        self.free, self.free_index, free_row = _free_dofs(n, strand.root, strand.tip,
+                                                         tuple(np.asarray(strand.pins, dtype=int).tolist()))
         if not self.free.any():
             raise ValueError(f"{strand!r}: its attachments prescribe every DOF; nothing is left to balance")
         vertex_scale = self.row_scale[dofs.position_index(n)[:, 0]]
@@ -139,8 +142,6 @@ class Problem:
         self.layout = ParameterLayout(n, l0, kappa[:, :2], twist, strand.youngs_modulus,
                                       strand.shear_modulus, optimize, stiffness, couple_twist, bounds,
                                       weights, self.contacts.vertices, self.contacts.directions.shape[1])
-        free_row = np.full(self.q_star.size, -1)
-        free_row[self.free] = np.arange(self.free.sum())
         # a contact is a "stencil" on its vertex's 3 positions with a slot per support g_ij: its
         # parameter Jacobian is constant, -D_i d_ij (JacobianPattern scales by -1/D: dc/dg_ij = d_ij)
         contact_dofs = dofs.position_index(n)[self.contacts.vertices]
@@ -154,13 +155,10 @@ class Problem:
             [(self.edge_dofs, self.layout.edge_map), (self.vertex_dofs, self.layout.vertex_map),
              (contact_dofs, contact_slots)])
         # the stencils' inputs at q* that do not depend on p (residual and Jacobian evaluate only there)
-        self._at_rest = (np.ascontiguousarray(self.q_star[self.edge_dofs]),
-                         np.ascontiguousarray(self.q_star[self.vertex_dofs]),
-                         np.ascontiguousarray(self._reference(self.frames)))
+        self._at_rest = (edge_q, vertex_q, reference)
         # the vertex kinematics k and dk/dy at q* (stencils.FixedShapeFunctions), dk/dy transposed
         kinematics, kinematics_jacobian = self.vertex_fixed_functions.kinematics(*self._at_rest[1:])
         self.kinematics_at_rest = (kinematics, np.ascontiguousarray(kinematics_jacobian.transpose(0, 2, 1)))
-        self.free_index = np.flatnonzero(self.free)
         self._free_row_scale = self.row_scale[self.free_index]
         self._free_gather = _free_gather(self.free_index, self.q_star.size)
         self._band_scatter = None  # built on the first hessian_band call
@@ -814,6 +812,19 @@ def _memo(cache: dict, key, build, limit: int = 16):
             cache.pop(next(iter(cache)))
         cache[key] = build()
     return cache[key]
+
+
+@functools.lru_cache(maxsize=64)
+def _free_dofs(n_vertices: int, root: str, tip, pins: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(free mask, free DOF indices, each DOF's row in c or -1) of a strand's attachments, shared
+    read-only by the strands of a groom."""
+    free = dofs.free_mask(n_vertices, root, tip, pins)
+    free_index = np.flatnonzero(free)
+    free_row = np.full(free.size, -1)
+    free_row[free] = np.arange(free_index.size)
+    for array in (free, free_index, free_row):
+        array.flags.writeable = False
+    return free, free_index, free_row
 
 
 #: principal_band_gather maps of the free DOFs by (size, free DOFs)
