@@ -138,3 +138,20 @@ def test_solver_errors_and_hangs_end_as_failed_strands(monkeypatch):
     assert results[2].status == "failed" and "timed out" in results[2].message
     assert results[0].status == results[3].status == "failed"  # naive: gravity unbalanced, but solved
     assert "gravity residual" in results[0].message and "gravity residual" in results[3].message
+
+
+def test_a_result_survives_pickling_with_and_without_contact_forces():
+    """Worker processes send Results through a pipe; the zeros of contact_forces travel as a shape."""
+    import pickle
+
+    import numpy as np
+
+    import sagfree
+
+    result = sagfree.optimize(sagfree.scenes.groom(2, 20, seed=0), jobs=1)[0]
+    for forces in (result.contact_forces, np.arange(60.0).reshape(20, 3)):
+        result.contact_forces = forces
+        copy = pickle.loads(pickle.dumps(result))
+        assert copy.contact_forces.shape == forces.shape and np.array_equal(copy.contact_forces, forces)
+        assert np.array_equal(copy.p, result.p) and copy.physical.keys() == result.physical.keys()
+        assert copy.message == result.message and copy.iterations == result.iterations

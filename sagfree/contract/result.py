@@ -82,6 +82,21 @@ class Result:
     def success(self) -> bool:
         return self.status == "converged"
 
+    def __getstate__(self) -> dict:
+        """Pickled without the zeros of contact_forces away from bodies (its shape instead): a
+        strand's Result crosses a pipe from each worker process, and those zeros were a fifth of it."""
+        state = dict(self.__dict__)
+        forces = state["contact_forces"]
+        if isinstance(forces, np.ndarray) and forces.dtype == float and not forces.any():
+            state["contact_forces"] = ("zeros", forces.shape)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        forces = state["contact_forces"]
+        if isinstance(forces, tuple):
+            state = {**state, "contact_forces": np.zeros(forces[1])}
+        self.__dict__.update(state)
+
     def __repr__(self) -> str:
         counts = ", ".join(f"{k}={v}" for k, v in self.iterations.items())
         stiff = ", ".join(f"{k} max {v['max']:.3g}" for k, v in self.stiffening.items())
