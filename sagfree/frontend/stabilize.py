@@ -188,9 +188,9 @@ def _landing(floored: Problem, p: np.ndarray) -> np.ndarray:
     """The floored problem's solution, found without a solve: for a strand held by its root alone
     its optimum (asc's start, solvers.statics_start, which the re-solve then only confirms: the
     eigenvalue checked here is the one its Result reads, memoized by p); elsewhere p restiffened
-    onto the floors (c kept, rest_change.restiffen). Both keep c = 0, and the optimum trades some
-    of the floors' stiffness back for rest change, so checking it rather than the restiffened p
-    saves rounds that the restiffened check passed and the re-solve's optimum failed."""
+    onto the floors (c kept, rest_change.restiffen). Both keep c = 0; the optimum trades some of
+    the floors' stiffness back for rest change, so it is less stable than the restiffened p, and
+    checking it checks the eigenvalue the Result will report, one evaluation fewer per round."""
     if square_rest_system(floored):
         start = linear_start(floored)
         if start is not None and np.abs(floored.residual(start)).max(initial=0.0) <= TOL:
