@@ -625,12 +625,12 @@ def _least_rest_change(problem: Problem) -> np.ndarray | None:
     are square (statics_start.square_rest_system) d is the unique solution of J_R d = -c(p0), one
     band LU of J_R (linalg.square); elsewhere the saddle system of the least diag(w)-norm change."""
     layout = problem.layout
-    J, c = problem.strand_jacobian(layout.p0), problem.residual(layout.p0)
+    J, c, rest = problem.strand_jacobian(layout.p0), problem.residual(layout.p0), layout.block_mask(REST_BLOCKS)
     if square_rest_system(problem):
-        change = square_column_solve(J, layout.block_mask(REST_BLOCKS) & (column_norms(J) > 0), -c)
+        change = square_column_solve(J, rest & (column_norms(J) > 0), -c)
         if change is not None:
             return change
-    step = constrained_step(J, layout.weights, np.zeros(problem.n_parameters), c, layout.block_mask(REST_BLOCKS))
+    step = constrained_step(J, layout.weights, np.zeros(problem.n_parameters), c, rest)
     return step[0] if step is not None and np.all(np.isfinite(step[0])) else None
 
 
