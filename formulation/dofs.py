@@ -47,14 +47,21 @@ def thetas(q: np.ndarray) -> np.ndarray:
     return q[theta_index((len(q) + 1) // 4)]
 
 
+@functools.lru_cache(maxsize=64)
 def vertex_stencil_index(n_vertices: int) -> np.ndarray:
-    """(n-2, 11) indices of (x_{i-1}, th_{i-1}, x_i, th_i, x_{i+1}) for i = 1..n-2."""
-    return 4 * np.arange(n_vertices - 2)[:, None] + np.arange(11)
+    """(n-2, 11) indices of (x_{i-1}, th_{i-1}, x_i, th_i, x_{i+1}) for i = 1..n-2 (shared per n,
+    read-only)."""
+    index = 4 * np.arange(n_vertices - 2)[:, None] + np.arange(11)
+    index.flags.writeable = False
+    return index
 
 
+@functools.lru_cache(maxsize=64)
 def edge_stencil_index(n_vertices: int) -> np.ndarray:
-    """(n-1, 6) indices of (x_j, x_{j+1}) for j = 0..n-2."""
-    return 4 * np.arange(n_vertices - 1)[:, None] + np.array([0, 1, 2, 4, 5, 6])
+    """(n-1, 6) indices of (x_j, x_{j+1}) for j = 0..n-2 (shared per n, read-only)."""
+    index = 4 * np.arange(n_vertices - 1)[:, None] + np.array([0, 1, 2, 4, 5, 6])
+    index.flags.writeable = False
+    return index
 
 
 def free_mask(n_vertices: int, root: str, tip: str | None = None, pins=()) -> np.ndarray:

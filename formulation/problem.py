@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import math
 
 import numba
 import numpy as np
@@ -24,10 +25,11 @@ from sagfree.linalg.timing import MODEL, timed
 from . import at_rest, dofs
 from .curvature import check_variant
 from .energies import TERMS
-from .frames import Frames, bishop_frames, default_director, project_director
+from .frames import Frames, default_director, first_tangent, project_director
 from .jacobian import JacobianPattern, StrandJacobian, scatter_values
 from .bodies import parse_body
 from .contact import Contacts, contact_penalty, find_contacts
+from .rest_geometry import reference_data, rest_geometry
 from .parameters import BLOCKS, CONTACT_BLOCK, STRAND_BLOCK, ParameterLayout, SlotMap
 from .stencils import edge_stencil, parameter_hessians, vertex_fixed_shape, vertex_stencil
 from .strand import InvalidStrand, Strand
@@ -78,7 +80,7 @@ class Problem:
                              f"expected a sagfree.Strand, got {type(strand).__name__}")
         check_variant(curvature)
         self.gravity = np.array(gravity, dtype=float).reshape(-1)
-        if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
+        if self.gravity.shape != (3,) or not all(map(math.isfinite, self.gravity.tolist())):
             raise ValueError(f"gravity must be a finite 3-vector, got {gravity!r}")
         unknown = set(energies) - set(TERMS)
         if unknown:
@@ -97,11 +99,9 @@ class Problem:
         self.bodies = tuple(parse_body(b) for b in (bodies or ()))
         n = self.n_vertices = strand.n_vertices
         points = strand.points
-        first = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
+        first = first_tangent(points)
         a1 = (default_director(first, self.gravity) if strand.director is None
               else project_director(first, strand.director))
-        self.frames: Frames = bishop_frames(points, a1)
-        self.q_star = dofs.interleave(points, strand.theta)
         self.edge_functions = edge_stencil("stretch" in energies)
         vertex_terms = tuple(t for t in ("bend", "twist") if t in energies)
         self.vertex_functions = vertex_stencil(curvature, vertex_terms)
@@ -110,15 +110,15 @@ class Problem:
         self.vertex_dofs = dofs.vertex_stencil_index(n)
 
         # input geometry through the same compiled expressions as the energies, so that the strains,
-        # curvature and twist differences vanish exactly at p0
-        edge_q, vertex_q = self.q_star[self.edge_dofs], self.q_star[self.vertex_dofs]  # C-contiguous copies
-        reference = np.ascontiguousarray(self._reference(self.frames))
-        (l0,) = self.edge_functions.geometry(edge_q)
-        kappa, twist = self.vertex_functions.geometry(vertex_q, reference)
-        self.edge_lengths, self.twist_star = l0, twist
+        # curvature and twist differences vanish exactly at p0 (one compiled call: rest_geometry)
         r = strand.radius
-        self._edge_geometry = np.column_stack([l0, np.full(n - 1, r)])
-        self._vertex_geometry = np.column_stack([l0[:-1], l0[1:], np.full(n - 2, r), twist, kappa])
+        rest = rest_geometry(points, strand.theta, a1, r, self.edge_functions, self.vertex_functions,
+                             self.vertex_fixed_functions)
+        self.frames: Frames = rest.frames
+        self.q_star = rest.q_star
+        l0, kappa, twist = rest.l0, rest.kappa, rest.twist
+        self.edge_lengths, self.twist_star = l0, twist
+        self._edge_geometry, self._vertex_geometry = rest.edge_geometry, rest.vertex_geometry
         half_edges = _vertex_sums(l0)  # l_{i-1} + l_i, one edge at the ends
         with np.errstate(all="ignore"):
             masses = 0.5 * strand.density * np.pi * np.float64(r) ** 2 * half_edges
@@ -144,10 +144,13 @@ class Problem:
                                       weights, self.contacts.vertices, self.contacts.directions.shape[1])
         # a contact is a "stencil" on its vertex's 3 positions with a slot per support g_ij: its
         # parameter Jacobian is constant, -D_i d_ij (JacobianPattern scales by -1/D: dc/dg_ij = d_ij)
-        contact_dofs = dofs.position_index(n)[self.contacts.vertices]
         width = self.contacts.directions.shape[1]
-        contact_index = self.layout.blocks.get(CONTACT_BLOCK, np.zeros(0, int)).reshape(-1, width)
-        contact_slots = SlotMap(contact_index, np.ones(contact_index.shape), np.zeros(contact_index.shape))
+        if self.contacts.count:
+            contact_dofs = dofs.position_index(n)[self.contacts.vertices]
+            contact_index = self.layout.blocks[CONTACT_BLOCK].reshape(-1, width)
+            contact_slots = SlotMap(contact_index, np.ones(contact_index.shape), np.zeros(contact_index.shape))
+        else:
+            contact_dofs, contact_slots = _no_contacts(width)
         self._contact_jacobian = -(self.contacts.directions.transpose(0, 2, 1)
                                    * vertex_scale[self.contacts.vertices, None, None])
         self._jacobian_pattern = JacobianPattern(
@@ -155,10 +158,9 @@ class Problem:
             [(self.edge_dofs, self.layout.edge_map), (self.vertex_dofs, self.layout.vertex_map),
              (contact_dofs, contact_slots)])
         # the stencils' inputs at q* that do not depend on p (residual and Jacobian evaluate only there)
-        self._at_rest = (edge_q, vertex_q, reference)
+        self._at_rest = (rest.edge_q, rest.vertex_q, rest.reference)
         # the vertex kinematics k and dk/dy at q* (stencils.FixedShapeFunctions), dk/dy transposed
-        kinematics, kinematics_jacobian = self.vertex_fixed_functions.kinematics(*self._at_rest[1:])
-        self.kinematics_at_rest = (kinematics, np.ascontiguousarray(kinematics_jacobian.transpose(0, 2, 1)))
+        self.kinematics_at_rest = (rest.kinematics, rest.kinematics_jacobian)
         self._free_row_scale = self.row_scale[self.free_index]
         self._free_gather = _free_gather(self.free_index, self.q_star.size)
         self._band_scatter = None  # built on the first hessian_band call
@@ -306,12 +308,6 @@ class Problem:
             raise ValueError(f"q must have {self.q_star.size} entries (4n-1), got {q.size}")
         return q
 
-    @staticmethod
-    def _reference(frames: Frames) -> np.ndarray:
-        """(n-2, 13) stencil reference data: t^{i-1}, a1^{i-1}, t^i, a1^i, reference twist."""
-        t, a1 = frames.tangents, frames.a1
-        return np.column_stack([t[:-1], a1[:-1], t[1:], a1[1:], frames.reference_twist])
-
     def stencil_inputs(self, p, q, frames):
         """The arguments of the edge and vertex stencil functions for parameters p at state q (None:
         q*) with reference frames ``frames`` (None: those of q*): (edge_q, edge geometry, edge physical
@@ -322,7 +318,7 @@ class Problem:
         else:
             q = self._state(q)
             edge_q, vertex_q = q[self.edge_dofs], q[self.vertex_dofs]
-            reference = self._reference(self.frames if frames is None else frames)
+            reference = reference_data(self.frames if frames is None else frames)
         edge = (edge_q, self._edge_geometry, self.layout.edge_map.evaluate(p))
         vertex = (vertex_q, reference, self._vertex_geometry, self.layout.vertex_map.evaluate(p))
         return edge, vertex
@@ -802,6 +798,17 @@ def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
             raise ValueError(f"strand {name} out of double-precision range ({np.min(values):.3g} to "
                              f"{np.max(values):.3g}): check the units of radius (m), moduli (Pa), density "
                              "(kg/m^3) and coordinates (m)")
+
+
+@functools.lru_cache(maxsize=4)
+def _no_contacts(width: int) -> tuple[np.ndarray, SlotMap]:
+    """The contact "stencils" of a strand without contacts (DOF index and SlotMap of ``width`` slots,
+    all empty, read-only), one object for all (JacobianPattern then knows its structure by identity)."""
+    index, dof_index = np.zeros((0, width), dtype=int), np.zeros((0, 3), dtype=int)
+    slots = SlotMap(index, np.ones(index.shape), np.zeros(index.shape))
+    for array in (index, dof_index, slots.coefficient, slots.constant):
+        array.flags.writeable = False
+    return dof_index, slots
 
 
 def _memo(cache: dict, key, build, limit: int = 16):

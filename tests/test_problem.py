@@ -8,6 +8,7 @@ import sagfree
 from sagfree.formulation import dofs
 from sagfree.formulation.curvature import VARIANTS
 from sagfree.formulation.frames import transport_frames
+from sagfree.formulation.rest_geometry import RestGeometry, rest_geometry, rest_geometry_numpy
 from sagfree.formulation.verification import (gradient_error, jacobian_error, perturbed_parameters,
                                               verification_strands)
 from sagfree.linalg.eigen import smallest_eigenpair
@@ -360,6 +361,27 @@ def test_compiled_hessian_band_and_eigenpair_are_the_numpy_sums(variant, rng):
             compiled_value, compiled_mode = pb.stability(p, vector=True)
             assert compiled_value == value and np.array_equal(compiled_mode[pb.free_index], mode * scale)
         assert pb.stability(compressed) < 0
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_compiled_rest_geometry_is_the_numpy_path(variant):
+    """A Problem's geometry at q* (frames, q*, the stencils' inputs, l0, kappa, twist, kinematics) is
+    one compiled call (formulation.rest_geometry) taking the numpy path's steps bit for bit, on the
+    verification strands (bent, twisted, a kink) and a 3-vertex strand (one vertex stencil)."""
+    strands = [*verification_strands(seed=4).values(), sagfree.scenes.horizontal(n=3)]
+    for strand in strands:
+        pb = sagfree.Problem(strand, curvature=variant)
+        arguments = (strand.points, strand.theta, pb.frames.a1[0], strand.radius, pb.edge_functions,
+                     pb.vertex_functions, pb.vertex_fixed_functions)
+        compiled, numpy_path = rest_geometry(*arguments), rest_geometry_numpy(*arguments)
+        for name in RestGeometry._fields:
+            mine, theirs = getattr(compiled, name), getattr(numpy_path, name)
+            if name == "frames":
+                mine = np.concatenate([mine.tangents.ravel(), mine.a1.ravel(), mine.reference_twist])
+                theirs = np.concatenate([theirs.tangents.ravel(), theirs.a1.ravel(), theirs.reference_twist])
+            assert mine.shape == theirs.shape and np.array_equal(mine, theirs), name
+        assert np.array_equal(compiled.q_star, pb.q_star)
+        assert np.allclose(compiled.l0, np.linalg.norm(np.diff(strand.points, axis=0), axis=1), rtol=1e-14)
 
 
 def test_compiled_unstressed_form_is_the_stencil_sum(rng):
