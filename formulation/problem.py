@@ -121,9 +121,8 @@ class Problem:
         self._edge_geometry, self._vertex_geometry = rest.edge_geometry, rest.vertex_geometry
         half_edges = _vertex_sums(l0)  # l_{i-1} + l_i, one edge at the ends
         with np.errstate(all="ignore"):
-            masses = 0.5 * strand.density * np.pi * np.float64(r) ** 2 * half_edges
-            self.row_scale = dofs.row_scales(masses, l0, strand.density, np.float64(r), self.gravity,
-                                             strand.loads)
+            masses = dofs.vertex_masses(l0, strand.density, r)
+            self.row_scale = dofs.row_scales(masses, l0, strand.density, r, self.gravity, strand.loads)
             moduli = np.array([strand.youngs_modulus, strand.shear_modulus])
             _check_scales(masses, self.row_scale, moduli * np.pi * np.float64(r) ** 4,
                           moduli * np.pi * np.float64(r) ** 2)
@@ -794,10 +793,19 @@ def _check_scales(masses, row_scale, bend_stiffness, stretch_stiffness) -> None:
                          ("bending and twisting stiffness (E, G) pi r^4", bend_stiffness),
                          ("stretch stiffness (E, G) pi r^2", stretch_stiffness)):
         values = np.asarray(values, dtype=float)
-        if not (values.min() > 1e-290 and values.max() < 1e290):  # NaN fails both comparisons
+        if not _in_range(values, 1e-290, 1e290):
             raise ValueError(f"strand {name} out of double-precision range ({np.min(values):.3g} to "
                              f"{np.max(values):.3g}): check the units of radius (m), moduli (Pa), density "
                              "(kg/m^3) and coordinates (m)")
+
+
+@numba.njit(cache=True)
+def _in_range(values, low, high) -> bool:  # pragma: no cover - compiled
+    """low < every value < high (False for a NaN): _check_scales' test in one pass."""
+    for value in values:
+        if not (low < value < high):
+            return False
+    return True
 
 
 @functools.lru_cache(maxsize=4)
