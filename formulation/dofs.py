@@ -135,9 +135,12 @@ def _vertex_masses(edge_lengths, density, radius):  # pragma: no cover - compile
     n = edge_lengths.size + 1
     factor = 0.5 * density * np.pi * radius**2
     masses = np.empty(n)
-    for i in range(n):
-        sum_of_edges = edge_lengths[i] if i < n - 1 else 0.0
-        if i > 0:
-            sum_of_edges = sum_of_edges + edge_lengths[i - 1] if i < n - 1 else edge_lengths[i - 1]
+    for i in range(n):  # l_i + l_{i-1}, one edge at the ends
+        if i == 0:
+            sum_of_edges = edge_lengths[0]
+        elif i == n - 1:
+            sum_of_edges = edge_lengths[n - 2]
+        else:
+            sum_of_edges = edge_lengths[i] + edge_lengths[i - 1]
         masses[i] = factor * sum_of_edges
     return masses
