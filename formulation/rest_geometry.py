@@ -28,8 +28,8 @@ from .frames import Frames, _transport_along, bishop_frames
 class RestGeometry(NamedTuple):
     """The strand at q*: ``frames`` (Bishop, reference twist 0), ``q_star`` (4n-1), the stencils'
     DOFs and reference data there (``edge_q`` (n-1, 6), ``vertex_q`` (n-2, 11), ``reference``
-    (n-2, 13)), rest lengths ``l0`` (n-1, m), curvatures ``kappa`` (n-2, 2 or 4) and twists
-    ``twist`` (n-2, rad), the stencils' geometry inputs ``edge_geometry`` (l0, r) and
+    (n-2, 13)), rest lengths ``l0`` (n-1,; m), curvatures ``kappa`` (n-2, 2 or 4) and twists
+    ``twist`` (n-2,; rad), the stencils' geometry inputs ``edge_geometry`` (l0, r) and
     ``vertex_geometry`` (l_{i-1}, l_i, r, m_i, kappa_i), and the vertex kinematics ``kinematics``
     (n-2, 5) with ``kinematics_jacobian`` (dk/dy)^T (n-2, 11, 5)."""
 
@@ -61,8 +61,9 @@ def rest_geometry(points: np.ndarray, theta: np.ndarray, a1_first: np.ndarray, r
     kappa_size = drivers[1].function.nnz_out(0)
     (tangents, a1, q_star, edge_q, vertex_q, reference, l0, kappa, twist, edge_geometry, vertex_geometry, kinematics,
      jacobian) = _rest_geometry(np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(theta, dtype=float),
-                       np.ascontiguousarray(a1_first, dtype=float), float(radius), dofs.edge_stencil_index(n),
-                       dofs.vertex_stencil_index(n), kappa_size, *(driver.address for driver in drivers))
+                                np.ascontiguousarray(a1_first, dtype=float), float(radius),
+                                dofs.edge_stencil_index(n), dofs.vertex_stencil_index(n), kappa_size,
+                                *(driver.address for driver in drivers))
     return RestGeometry(Frames(tangents, a1, np.zeros(n - 2)), q_star, edge_q, vertex_q, reference, l0, kappa,
                         twist, edge_geometry, vertex_geometry, kinematics, jacobian)
 
