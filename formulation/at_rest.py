@@ -55,13 +55,22 @@ def call_driver(typing_context, address, count, inputs, outputs):
 def _call(driver, count, inputs, out):  # pragma: no cover - compiled
     """The batch driver at address ``driver`` (compiled._DRIVER) on ``count`` stencils: the arrays
     of the tuple ``inputs`` in, one output."""
-    pointers, outputs = np.empty(len(inputs), dtype=np.intp), np.empty(1, dtype=np.intp)
+    call_into(driver, count, inputs, (out,))
+
+
+@numba.njit(cache=True)
+def call_into(driver, count, inputs, outputs):  # pragma: no cover - compiled
+    """The batch driver at address ``driver`` on ``count`` stencils: the C-contiguous arrays of the
+    tuple ``inputs`` in, those of ``outputs`` (a tuple of 2-D arrays, (count, entries) each, as
+    compiled.BatchFunction allocates them) out."""
+    pointers, out_pointers = np.empty(len(inputs), dtype=np.intp), np.empty(len(outputs), dtype=np.intp)
     k = 0
     for array in numba.literal_unroll(inputs):
         pointers[k] = array.ctypes.data
         k += 1
-    outputs[0] = out.ctypes.data
-    call_driver(driver, count, pointers.ctypes.data, outputs.ctypes.data)
+    for k in range(len(outputs)):
+        out_pointers[k] = outputs[k].ctypes.data
+    call_driver(driver, count, pointers.ctypes.data, out_pointers.ctypes.data)
 
 
 @numba.njit(cache=True)

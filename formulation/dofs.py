@@ -95,19 +95,14 @@ def row_scales(masses: np.ndarray, edge_lengths: np.ndarray, density: float, rad
                        float(density), float(radius), g, load_norms)
 
 
-def vertex_masses(edge_lengths: np.ndarray, density: float, radius: float) -> np.ndarray:
-    """Lumped vertex masses m_i = rho pi r^2 (l_{i-1} + l_i) / 2 (kg; one edge at the ends)."""
-    return _vertex_masses(np.ascontiguousarray(edge_lengths, dtype=float), float(density), float(radius))
-
-
 def _loads(loads, n_vertices: int) -> np.ndarray:
     """The (n, 3) loads as floats, or (0, 3) for none (the compiled kernels' "no loads")."""
     return np.zeros((0, 3)) if loads is None else np.ascontiguousarray(loads, dtype=float).reshape(n_vertices, 3)
 
 
 # The kernels below take the numpy forms' operations in the same order (scalar factors first), so
-# their numbers are the same bit for bit; compiled because every Problem calls them (~40 us of
-# numpy calls on 100 vertices, a tenth of its construction).
+# their numbers are the same bit for bit; compiled because every Problem calls them (~30 us of
+# numpy calls on 100 vertices).
 
 @numba.njit(cache=True)
 def _external_forces(masses, gravity, loads):  # pragma: no cover - compiled
@@ -128,19 +123,3 @@ def _row_scales(masses, edge_lengths, density, radius, g, load_norms):  # pragma
     for j in range(edge_lengths.size):
         d[4 * j + 3] = factor * edge_lengths[j] ** 2 * g
     return d
-
-
-@numba.njit(cache=True)
-def _vertex_masses(edge_lengths, density, radius):  # pragma: no cover - compiled
-    n = edge_lengths.size + 1
-    factor = 0.5 * density * np.pi * radius**2
-    masses = np.empty(n)
-    for i in range(n):  # l_i + l_{i-1}, one edge at the ends
-        if i == 0:
-            sum_of_edges = edge_lengths[0]
-        elif i == n - 1:
-            sum_of_edges = edge_lengths[n - 2]
-        else:
-            sum_of_edges = edge_lengths[i] + edge_lengths[i - 1]
-        masses[i] = factor * sum_of_edges
-    return masses

@@ -11,13 +11,12 @@ per Gauss-Newton step; ``tocsc`` gives one where a sparse factorization needs it
 """
 from __future__ import annotations
 
-import weakref
-
 import numba
 import numpy as np
 import scipy.sparse as sp
 
 from sagfree.linalg.compressed import csc_column_norms, csc_matvec, csc_rmatvec
+from sagfree.linalg.identity import IdentityMemo
 
 from .parameters import SlotMap
 
@@ -28,25 +27,8 @@ _STRUCTURES: dict = {}
 
 #: the same structures by the identity of the index arrays (the strands of one size share the
 #: arrays themselves: dofs' stencil indices, the free rows of _free_dofs, a layout structure's slot
-#: indices), checked through weak references; read-only arrays only, whose values cannot change under
-#: the same identity. Hashing their bytes took ~20 us per Problem.
-_STRUCTURES_BY_ARRAYS: dict = {}
-
-
-def _known_by_identity(arrays, shape):
-    """The structure remembered for these very arrays (and shape), or None."""
-    known = _STRUCTURES_BY_ARRAYS.get((shape, *map(id, arrays)))
-    if known is None or any(reference() is not array for reference, array in zip(known[0], arrays)):
-        return None
-    return known[1]
-
-
-def _remember_identity(arrays, shape, structure) -> None:
-    if any(array.flags.writeable for array in arrays):
-        return
-    if len(_STRUCTURES_BY_ARRAYS) >= 16:
-        _STRUCTURES_BY_ARRAYS.pop(next(iter(_STRUCTURES_BY_ARRAYS)))
-    _STRUCTURES_BY_ARRAYS[(shape, *map(id, arrays))] = (tuple(map(weakref.ref, arrays)), structure)
+#: indices); read-only arrays only, whose values cannot change under the same identity
+_STRUCTURES_BY_ARRAYS = IdentityMemo()
 
 
 def _structure(free_row, n_rows, n_parameters, stencils):
@@ -99,7 +81,7 @@ class JacobianPattern:
         per stencil kind, in the order their Jacobians are passed to ``values``."""
         self.shape = (n_rows, n_parameters)
         arrays = (free_row, *(a for ix, slots in stencils for a in (ix, slots.index)))
-        structure = _known_by_identity(arrays, self.shape)
+        structure = _STRUCTURES_BY_ARRAYS.get(arrays, self.shape)
         if structure is None:
             key = (self.shape, *(a.tobytes() for a in arrays))
             structure = _STRUCTURES.get(key)
@@ -108,7 +90,8 @@ class JacobianPattern:
                 if len(_STRUCTURES) >= 16:
                     _STRUCTURES.pop(next(iter(_STRUCTURES)))
                 _STRUCTURES[key] = structure
-            _remember_identity(arrays, self.shape, structure)
+            if not any(array.flags.writeable for array in arrays):
+                _STRUCTURES_BY_ARRAYS.put(arrays, self.shape, structure)
         (self._target, self._source, self.indices, self.indptr, self.csr_indptr, self.csr_indices,
          self.csr_order, (coefficient, dof)) = structure
         # scale_k = coefficient / -D of source k's slot and row, gathered only where J has entries

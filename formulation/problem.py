@@ -121,7 +121,7 @@ class Problem:
         self._edge_geometry, self._vertex_geometry = rest.edge_geometry, rest.vertex_geometry
         half_edges = _vertex_sums(l0)  # l_{i-1} + l_i, one edge at the ends
         with np.errstate(all="ignore"):
-            masses = dofs.vertex_masses(l0, strand.density, r)
+            masses = 0.5 * strand.density * np.pi * np.float64(r) ** 2 * half_edges
             self.row_scale = dofs.row_scales(masses, l0, strand.density, r, self.gravity, strand.loads)
             moduli = np.array([strand.youngs_modulus, strand.shear_modulus])
             _check_scales(masses, self.row_scale, moduli * np.pi * np.float64(r) ** 4,

@@ -9,7 +9,7 @@ From the vertices x_i and edge angles th_j (DESIGN section 3):
 so that the strains, curvatures and twists of the energies vanish exactly at p0 (the same CasADi
 expressions). In numpy these were ~15 calls of a few microseconds each around three CasADi batches
 (~60 us of arithmetic): ``rest_geometry`` makes them one numba call that runs the batch drivers at
-their addresses (at_rest.call_driver), with the same arithmetic in the same order, so the numbers
+their addresses (at_rest.call_into), with the same arithmetic in the same order, so the numbers
 are the numpy path's bit for bit (``rest_geometry_numpy``, used where the stencils are not compiled,
 and by the test that compares the two).
 """
@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 from . import dofs
-from .at_rest import call_driver
+from .at_rest import call_into
 from .frames import Frames, _transport_along, bishop_frames
 
 
@@ -125,11 +125,11 @@ def _rest_geometry(points, theta, a1_first, radius, edge_dofs, vertex_dofs, kapp
             reference[s, 6 + k], reference[s, 9 + k] = tangents[s + 1, k], a1[s + 1, k]
     # the drivers' outputs as (count, entries) blocks, as compiled.BatchFunction allocates them
     l0 = np.empty((edges, 1))
-    _call_into(edge_geometry_driver, edges, (edge_q,), (l0,))
+    call_into(edge_geometry_driver, edges, (edge_q,), (l0,))
     l0 = l0[:, 0]
     kappa, twist = np.empty((vertices, kappa_size)), np.empty((vertices, 1))
     if vertices:
-        _call_into(vertex_geometry_driver, vertices, (vertex_q, reference), (kappa, twist))
+        call_into(vertex_geometry_driver, vertices, (vertex_q, reference), (kappa, twist))
     twist = twist[:, 0]
     edge_geometry = np.empty((edges, 2))
     for j in range(edges):
@@ -142,18 +142,6 @@ def _rest_geometry(points, theta, a1_first, radius, edge_dofs, vertex_dofs, kapp
             vertex_geometry[s, 4 + k] = kappa[s, k]
     kinematics, jacobian = np.empty((vertices, 5)), np.empty((vertices, 5 * vertex_dofs.shape[1]))
     if vertices:
-        _call_into(kinematics_driver, vertices, (vertex_q, reference), (kinematics, jacobian))
+        call_into(kinematics_driver, vertices, (vertex_q, reference), (kinematics, jacobian))
     return (tangents, a1, q_star, edge_q, vertex_q, reference, l0, kappa, twist, edge_geometry, vertex_geometry,
             kinematics, jacobian.reshape(vertices, vertex_dofs.shape[1], 5))
-
-
-@numba.njit(cache=True)
-def _call_into(driver, count, inputs, outputs):  # pragma: no cover - compiled
-    """The batch driver at address ``driver`` on ``count`` stencils: the tuples of C-contiguous 2-D
-    arrays ``inputs`` in, ``outputs`` out (at_rest._call with several outputs)."""
-    in_pointers, out_pointers = np.empty(len(inputs), dtype=np.intp), np.empty(len(outputs), dtype=np.intp)
-    for k in range(len(inputs)):
-        in_pointers[k] = inputs[k].ctypes.data
-    for k in range(len(outputs)):
-        out_pointers[k] = outputs[k].ctypes.data
-    call_driver(driver, count, in_pointers.ctypes.data, out_pointers.ctypes.data)

@@ -10,6 +10,7 @@ Every strand matrix is banded because DOFs and parameters are both ordered along
 - ``normal``: the row-space normal matrix J_C diag(d) J_C^T, factored (least-squares multipliers);
 - ``saddle``: the equality-constrained step [[W_F, J_F^T], [J_F, 0]], by band LU;
 - ``eigen``: the smallest eigenvalue of a band matrix by shift-and-invert Lanczos.
+- ``identity``: values remembered by the identity of the (shared) index arrays they came from.
 
 A sparse argument ``J`` is a scipy.sparse matrix or any object with ``shape`` and the methods
 ``csr()`` / ``csc()`` returning (indptr, indices, data) (formulation.jacobian.StrandJacobian gives

@@ -7,8 +7,6 @@ SQP steps and the linear start of ``asc`` all take it).
 """
 from __future__ import annotations
 
-import weakref
-
 import numba
 import numpy as np
 import scipy.sparse as sp
@@ -17,6 +15,7 @@ from scipy.sparse.linalg import splu
 from . import lapack
 from .band import csc_arrays, dense_columns
 from .compressed import csc_matvec, csc_rmatvec
+from .identity import IdentityMemo
 from .timing import LINEAR_ALGEBRA, timed
 
 
@@ -164,13 +163,12 @@ def _saddle_order(indptr, indices, rows):
     [[W, J^T], [J, 0]], or None if a column of J fills most rows. A parameter is placed at the
     middle row its column touches (an empty column after the previous parameter), the rows of J
     at their own index; sorted stably, parameters before rows at the same place."""
-    same_arrays = (id(indptr), id(indices), rows)
-    known = _ORDERS_BY_ARRAYS.get(same_arrays)
-    if known is not None and known[0]() is indptr and known[1]() is indices:
-        return known[2]
+    known = _ORDERS_BY_ARRAYS.get((indptr, indices), rows)
+    if known is not None:
+        return known
     key = (rows, indptr.tobytes(), indices.tobytes())
     if key in _ORDERS:
-        return _remember_arrays(same_arrays, indptr, indices, _ORDERS[key])
+        return _ORDERS_BY_ARRAYS.put((indptr, indices), rows, _ORDERS[key])
     counts = np.diff(indptr)
     if np.any(dense_columns(indptr, rows)):
         order = None
@@ -190,20 +188,13 @@ def _saddle_order(indptr, indices, rows):
     if len(_ORDERS) >= 16:
         _ORDERS.pop(next(iter(_ORDERS)))
     _ORDERS[key] = order
-    return _remember_arrays(same_arrays, indptr, indices, order)
+    return _ORDERS_BY_ARRAYS.put((indptr, indices), rows, order)
 
 
 #: the same orders by the identity of J's index arrays: a StrandJacobian's are its pattern's, shared
 #: by every Jacobian of a strand and by the strands of a groom (jacobian._STRUCTURES), and hashing
 #: their bytes for _ORDERS cost ~14 us per factorization
-_ORDERS_BY_ARRAYS: dict = {}
-
-
-def _remember_arrays(same_arrays, indptr, indices, order):
-    if len(_ORDERS_BY_ARRAYS) >= 16:
-        _ORDERS_BY_ARRAYS.pop(next(iter(_ORDERS_BY_ARRAYS)))
-    _ORDERS_BY_ARRAYS[same_arrays] = (weakref.ref(indptr), weakref.ref(indices), order)
-    return order
+_ORDERS_BY_ARRAYS = IdentityMemo()
 
 
 @numba.njit(cache=True)
