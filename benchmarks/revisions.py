@@ -7,11 +7,14 @@ checkout, so "before" mixed the two revisions' code.
 from __future__ import annotations
 
 import contextlib
+import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -20,15 +23,17 @@ ROOT = Path(__file__).resolve().parents[1]
 @contextlib.contextmanager
 def installed_revision(revision: str):
     """Yield the folder into which pip installed the code at git ``revision`` (from a temporary
-    worktree; both removed afterwards), or None outside a git checkout, for an empty revision, or
-    where pip cannot install it (the reason printed)."""
+    worktree; both removed afterwards, also on SIGTERM, and by the next run after a SIGKILL), or None
+    outside a git checkout, for an empty revision, or where pip cannot install it (the reason
+    printed)."""
     if not revision or not (ROOT / ".git").exists():
         yield None
         return
-    with tempfile.TemporaryDirectory(prefix="sagfree-before-") as where:
+    _remove_abandoned_worktrees()
+    with tempfile.TemporaryDirectory(prefix=_PREFIX) as where, _terminate_cleanly():
         checkout, site = Path(where) / "src", Path(where) / "site"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(checkout), revision],
-                       check=True)
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", "--lock", "--reason",
+                        f"{_LOCK}{os.getpid()}", str(checkout), revision], check=True)
         try:
             installed = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target",
                                         str(site), str(checkout)], capture_output=True, text=True)
@@ -39,7 +44,53 @@ def installed_revision(revision: str):
             else:
                 yield site
         finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(checkout)], check=False)
+            _remove_worktree(checkout)
+
+
+#: the temporary folders of the installs, and the lock reason of their worktrees (+ the process id)
+_PREFIX, _LOCK = "sagfree-before-", "sagfree benchmark, process "
+
+
+def _remove_worktree(checkout: Path) -> None:
+    # locked: --force twice
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", "--force", str(checkout)], check=False)
+
+
+def _remove_abandoned_worktrees() -> None:
+    """Remove the worktrees (and temporary folders) of earlier runs that were killed before their
+    clean-up (SIGKILL, a closed terminal): their lock names a process that no longer runs."""
+    listing = subprocess.run(["git", "-C", str(ROOT), "worktree", "list", "--porcelain"], capture_output=True,
+                             text=True).stdout
+    for entry in listing.split("\n\n"):
+        fields = dict(line.split(" ", 1) for line in entry.splitlines() if " " in line)
+        path, lock = Path(fields.get("worktree", "")), fields.get("locked", "")
+        if lock.startswith(_LOCK) and path.parent.name.startswith(_PREFIX) and not _running(int(lock[len(_LOCK):])):
+            _remove_worktree(path)
+            shutil.rmtree(path.parent, ignore_errors=True)
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "prune"], check=False)
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def _terminate_cleanly():
+    """SIGTERM (``kill``, a CI timeout) raises SystemExit inside, so the clean-up above runs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, lambda number, frame: sys.exit(128 + number))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 #: ``import sagfree``, ``from sagfree ...`` and ``sagfree.<module>`` in code: what ``renamed_copy``
