@@ -124,6 +124,7 @@ from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, 
                            MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
+from .confirmed_start import confirmed_start
 from .statics_start import square_rest_system, statics_start
 
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
@@ -197,11 +198,13 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                   factorizations=0, factored_rows=0, line_search=0, corrected=0, sqp=0, tightened=0, least_residual=0,
                   newton_sqp=0)
     attempts = feasible_rounds = 0
+    confirmed = None  # (start, its KKT distance) from one compiled call (solvers.confirmed_start)
     if p_start is None:
         p_start = problem.p0
         if (start != "p0" and problem.layout.stiffness == "element" and CONTACT_BLOCK not in problem.blocks
                 and problem.strand.tip != "pinned" and any(b in problem.blocks for b in STIFFNESS_BLOCKS)):
-            linear = linear_start(problem, optimal=start == "auto")
+            confirmed = confirmed_start(problem) if start == "auto" else None
+            linear = confirmed[0] if confirmed is not None else linear_start(problem, optimal=start == "auto")
             if linear is not None:
                 p_start, history = linear, [float(np.abs(problem.residual(problem.p0)).max(initial=0.0))]
     p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
@@ -217,7 +220,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
 
     violation = float(np.abs(c).max(initial=0.0))
     if violation <= tol:  # the start at the optimum (statics_start) or a p_start at one: confirmed at once
-        distance = kkt_optimality(problem, p)
+        distance = confirmed[1] if confirmed is not None else kkt_optimality(problem, p)
         if distance <= kkt_tol:
             history.append(violation)
             return converged_at(violation, distance)

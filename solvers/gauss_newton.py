@@ -188,7 +188,7 @@ def _merit(w, p, p0, c, lam, mu, work):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _residual(p, forces_args, free, row_scale):  # pragma: no cover - compiled
+def at_rest_residual(p, forces_args, free, row_scale):  # pragma: no cover - compiled
     """(c(p), f(q*, p)) as Problem.residual and Problem.forces give them."""
     f = at_rest.forces(p, *forces_args)
     c = np.empty(free.size)
@@ -339,7 +339,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
             for j in range(n):
                 trial[j] = min(max(p[j] + alpha * step[j], lower[j]), upper[j])
             started = timing.clock_seconds(clock, clock_id, buffer)
-            c_trial, f_trial = _residual(trial, forces_args, free, row_scale)
+            c_trial, f_trial = at_rest_residual(trial, forces_args, free, row_scale)
             seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
             merit_trial = _merit(w, trial, p0, c_trial, lam, mu, work)[0]
             if merit_trial <= reference + ARMIJO * alpha * slope + rounding:
@@ -354,7 +354,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
                 if candidate.size:
                     counts[_LINE_SEARCH] += 1
                     started = timing.clock_seconds(clock, clock_id, buffer)
-                    c_candidate, f_candidate = _residual(candidate, forces_args, free, row_scale)
+                    c_candidate, f_candidate = at_rest_residual(candidate, forces_args, free, row_scale)
                     seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
                     merit_candidate = _merit(w, candidate, p0, c_candidate, lam, mu, work)[0]
                     if merit_candidate <= reference + ARMIJO * slope + rounding:

@@ -46,7 +46,7 @@ from sagfree.linalg.band import column_norms
 
 #: coordinate-descent rounds for the root edge's rest length and the first vertex's multiplier
 ROOT_STEPS = 100
-#: sweeps over the edges and vertices coupled through the vertices' rest-length sums (_optimum)
+#: sweeps over the edges and vertices coupled through the vertices' rest-length sums (statics_optimum)
 SWEEPS = 20
 #: Newton steps of least_multiplier_scalar (monotone from the left end; ~6 reach the rounding)
 NEWTON_STEPS = 60
@@ -71,12 +71,17 @@ def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
     layout = problem.layout
     if not square_rest_system(problem):
         return None  # the rest change is not the only one
-    blocks = layout.blocks
-    rest = np.column_stack([blocks["rest_curvature"].reshape(-1, 2), blocks["rest_twist"]])
-    p = _optimum(np.ascontiguousarray(change, dtype=float), layout.p0, layout.weights, layout.lower, layout.upper,
-                 blocks["rest_length"], blocks["stretch_stiffness"], blocks["bend_stiffness"], rest,
-                 problem.edge_lengths)
+    p = statics_optimum(np.ascontiguousarray(change, dtype=float), layout.p0, layout.weights, layout.lower,
+                        layout.upper, *statics_indices(problem), problem.edge_lengths)
     return p if p.size else None
+
+
+def statics_indices(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """statics_optimum's block indices into p: the rest lengths, stretch and bend multipliers, and
+    (S, 3) each vertex's rest curvature and twist entries."""
+    blocks = problem.layout.blocks
+    rest = np.column_stack([blocks["rest_curvature"].reshape(-1, 2), blocks["rest_twist"]])
+    return blocks["rest_length"], blocks["stretch_stiffness"], blocks["bend_stiffness"], rest
 
 
 def square_rest_system(problem: Problem) -> bool:
@@ -92,7 +97,7 @@ def _square_rest_columns(problem: Problem) -> bool:
 
 
 @numba.njit(cache=True)
-def _optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths):  # pragma: no cover - compiled
+def statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths):  # pragma: no cover
     """The start of the module docstring in one compiled call (statics_start's arrays: the layout's
     p0, weights and box, the blocks' indices, rest (S, 3) the vertices' rest entries, the edge
     lengths l0); empty where a box admits no multiplier. Sweeps (at most SWEEPS): the edges, each

@@ -14,8 +14,11 @@ import numba
 import numpy as np
 
 from sagfree.formulation.problem import Problem
-from sagfree.linalg.band import column_norms
-from sagfree.linalg.saddle import constrained_step
+from sagfree.linalg import lapack
+from sagfree.linalg.band import column_norms, csc_arrays
+from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
+from sagfree.linalg.saddle import band_order, constrained_step, plain_band_step
+from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
 #: |c|_inf (unit-free) at or below which a strand is in equilibrium (DESIGN section 4).
 TOL = 1e-8
@@ -83,14 +86,23 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6, nearby=N
 
     ``nearby``: the linalg.saddle.SaddleFactor of a solver's last step at a point near p (asc's SQP
     step), reused by iterative refinement where its free set is the first working set
-    (constrained_step): the distance is the same to rounding, without a factorization.
+    (constrained_step): the distance is the same to rounding, without a factorization. Without one,
+    where the saddle system is a band (linalg.saddle.band_order; not with a strand multiplier), the
+    loop below runs as one compiled call, ``band_kkt_distance``, with the same arithmetic.
     """
     J = problem.strand_jacobian(p)
     c, regularizer_gradient = problem.residual(p), problem.objective_gradient(p)
     w, lower, upper = problem.layout.weights, problem.layout.lower, problem.layout.upper
+    indptr, indices, data = csc_arrays(J)
+    position = band_order(indptr, indices, J.shape[0]) if nearby is None else None
+    if position is not None:  # the loop below in one compiled call
+        return float(_timed_band_kkt_distance(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, position,
+                                              np.asarray(w, dtype=float), regularizer_gradient, c,
+                                              np.asarray(p, dtype=float), lower, upper, float(near)))
     at_lower = p - lower <= upper - p
     active = ~working_set(p, lower, upper, near)
     scale = gradient_scale(w, J)
+    wrong = None
     for _ in range(10):
         solution = constrained_step(J, w, regularizer_gradient, c, ~active, nearby, REFINED_DISTANCE)
         nearby = None  # a changed working set needs its own factorization
@@ -108,5 +120,62 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6, nearby=N
         if not wrong.any():
             break
         active &= ~wrong
+    if wrong is None:  # no working set gave a solvable system
+        return float("inf")
     wrong_size = np.where(wrong, np.abs(gradient), 0.0) / scale
     return max(float(np.abs(step).max(initial=0.0)), float(wrong_size.max(initial=0.0)))
+
+
+@numba.njit(cache=True)
+def band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower, upper,
+                      near):  # pragma: no cover - compiled
+    """``kkt_optimality`` where the saddle system is a band (linalg.saddle.band_order gives
+    ``position``) and no nearby factorization is offered: its loop line by line, the same
+    arithmetic, in one compiled call (J in compressed columns; callable from compiled code, as
+    solvers.statics_start's confirmation calls it)."""
+    n = p.size
+    scale = w + csc_column_norms(indptr, data) + 1e-300  # gradient_scale
+    at_lower, active = np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_)
+    for j in range(n):
+        at_lower[j] = p[j] - lower[j] <= upper[j] - p[j]
+        slack = near * (upper[j] - lower[j])  # working_set
+        active[j] = not ((p[j] - lower[j] > slack) and (upper[j] - p[j] > slack))
+    threshold = 1e-3 * KKT_TOL
+    step, gradient, wrong, solved = np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_), False
+    for _ in range(10):
+        singular, d, lam = plain_band_step(dgbtrf, dgbtrs, indptr, indices, data, w, ~active, position,
+                                           regularizer_gradient, c)
+        if singular:  # too few free directions: free the variables near but not on a bound
+            loose = False
+            for j in range(n):
+                if active[j] and p[j] > lower[j] and p[j] < upper[j]:
+                    active[j], loose = False, True
+            if not loose:
+                return np.inf
+            continue
+        step, solved = d, True
+        gradient = regularizer_gradient + csc_rmatvec(indptr, indices, data, lam)
+        any_wrong = False
+        for j in range(n):
+            signed = -gradient[j] if at_lower[j] else gradient[j]
+            wrong[j] = active[j] and signed > threshold * scale[j]
+            any_wrong |= wrong[j]
+        if not any_wrong:
+            break
+        for j in range(n):
+            active[j] &= not wrong[j]
+    if not solved:
+        return np.inf
+    largest_step, largest_wrong = 0.0, 0.0
+    for j in range(n):  # numpy's max: a NaN is kept from then on
+        size = abs(step[j])
+        if not size <= largest_step:
+            largest_step = size if largest_step == largest_step else largest_step
+        wrong_size = (abs(gradient[j]) if wrong[j] else 0.0) / scale[j]
+        if not wrong_size <= largest_wrong:
+            largest_wrong = wrong_size if largest_wrong == largest_wrong else largest_wrong
+    return largest_wrong if largest_wrong > largest_step else largest_step  # Python's max(step, wrong)
+
+
+#: the compiled loop as linear algebra in a Result's time split (its factorization is most of it)
+_timed_band_kkt_distance = timed(LINEAR_ALGEBRA)(band_kkt_distance)

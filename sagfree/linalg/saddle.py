@@ -115,6 +115,35 @@ class SaddleFactor:
         return None
 
 
+def band_order(indptr, indices, rows: int) -> np.ndarray | None:
+    """The position of each unknown [d; lam] in the band order of the saddle system of J (its
+    compressed columns' pattern, ``rows`` rows; _saddle_order, shared by the strands of a size), or
+    None where a dense column leaves SuperLU to factor it: the ``position`` of ``plain_band_step``."""
+    order = _saddle_order(indptr, indices, rows)
+    return None if order is None else order[0]
+
+
+@numba.njit(cache=True)
+def plain_band_step(dgbtrf, dgbtrs, indptr, indices, data, w, free, position, gradient, c):  # pragma: no cover
+    """(singular, d, lam): ``SaddleFactor(J, w, free).solve(gradient, c)`` without curvature, callable
+    from compiled code (J in compressed columns, ``position`` from ``band_order``, the LAPACK
+    addresses of linalg.lapack), the same arithmetic; singular as SaddleFactor.singular (then d and
+    lam are empty)."""
+    n, rows = indptr.size - 1, c.size
+    count = 0
+    for j in range(n):
+        count += free[j]
+    if count < rows:
+        return True, np.empty(0), np.empty(0)
+    none = np.zeros(0, dtype=np.int64)
+    kept, reduced, half, band, pivots, info = _factored_band(dgbtrf, indptr, indices, data, w, free, position, none,
+                                                             none, np.zeros(0))
+    if info != 0:
+        return True, np.empty(0), np.empty(0)
+    d, lam = _band_solution(dgbtrs, band, half, pivots, kept, reduced, gradient, c, n, rows)
+    return False, d, lam
+
+
 #: corrections of SaddleFactor.solve_nearby before it gives up, and the relative size of a last
 #: correction of the multipliers that ends it
 REFINEMENTS = 4

@@ -26,14 +26,15 @@ def square_column_solve(J, columns: np.ndarray, rhs: np.ndarray) -> np.ndarray |
     if int(columns.sum()) != J.shape[0]:
         return None
     indptr, indices, data = csc_arrays(J)
-    x = _square_solution(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, columns,
+    x = square_solution(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, columns,
                          np.ascontiguousarray(rhs, dtype=float))
     return x if x.size and np.all(np.isfinite(x)) else None
 
 
 @numba.njit(cache=True)
-def _square_solution(dgbtrf, dgbtrs, indptr, indices, data, columns, rhs):  # pragma: no cover - compiled
-    """``square_column_solve`` in one compiled call (empty where LAPACK reports a zero pivot)."""
+def square_solution(dgbtrf, dgbtrs, indptr, indices, data, columns, rhs):  # pragma: no cover - compiled
+    """``square_column_solve`` in one compiled call, callable from compiled code (empty where LAPACK
+    reports a zero pivot)."""
     n, rows = indptr.size - 1, rhs.size
     number = np.full(n, -1, dtype=np.int64)  # each kept column's index in x_C
     kept = 0

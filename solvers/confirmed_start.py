@@ -1,0 +1,111 @@
+"""asc's start for a strand held by its root alone, and its KKT confirmation, in one compiled call.
+
+Most strands of a groom are held by their root alone, and for them asc's start is the optimum
+(solvers.statics_start): ``solve_alm`` takes the least rest change at p0 (alm.linear_start: c and
+dc/dp at p0, one band LU of the square rest system), the optimum it fixes, c and dc/dp there, and
+the KKT distance that confirms it (contract.optimality.kkt_optimality: one band LU of the saddle
+system), and returns. Those compiled kernels took about half of that path's time and the Python
+between them the rest (benchmarks/study_compiled_floor.py); here they run in one compiled call, in
+the same order on the same inputs, so the start, the memos it fills and the distance are those of
+the Python path bit for bit (tests/test_confirmed_start.py). solve_alm then finds c and dc/dp at
+both points in the Problem's memos, and the least rest change where linear_start (the
+stabilization's landings) looks for it. Where the path does not apply (no compiled stencils,
+bodies, another attachment, a rest system that is not square or singular, a box that admits no
+multiplier) the call returns None and solve_alm takes its Python path.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from sagfree.contract.optimality import band_kkt_distance
+from sagfree.formulation import at_rest
+from sagfree.formulation.parameters import REST_BLOCKS
+from sagfree.formulation.problem import Problem
+from sagfree.linalg import lapack, timing
+from sagfree.linalg.compressed import csc_column_norms
+from sagfree.linalg.saddle import band_order
+from sagfree.linalg.square import square_solution
+
+from .gauss_newton import at_rest_residual
+from .statics_start import applies, statics_indices, statics_optimum
+
+
+def confirmed_start(problem: Problem, near: float = 1e-6) -> tuple[np.ndarray, float] | None:
+    """(p, KKT distance at p) of asc's start where statics_start applies (module docstring), the
+    distance as ``kkt_optimality(problem, p, near)``; None elsewhere. Fills the Problem's memos: c
+    and dc/dp at p0 and at p, the least rest change and the square-system verdict."""
+    kernels = problem.at_rest_kernels
+    if kernels is None or timing.CLOCK is None or not applies(problem):
+        return None
+    forces_args, jacobian_args, free, row_scale, structure = kernels
+    indptr, indices = structure[0], structure[1]
+    position = band_order(indptr, indices, free.size)
+    if position is None:
+        return None
+    layout = problem.layout
+    rate, multiplier, bend, rest = statics_indices(problem)
+    seconds = np.zeros(2)
+    outcome, change, p, f0, values0, f, values, distance = _confirmed(
+        forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
+        layout.weights, layout.lower, layout.upper, rate, multiplier, bend, rest, problem.edge_lengths, position,
+        lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK, seconds)
+    timing.add(timing.MODEL, seconds[0])
+    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
+    problem.remember_at_rest(layout.p0, f0, values0)
+    problem.bound_independent("square rest system", lambda: outcome != _NOT_SQUARE)
+    if outcome == _CONFIRMED:
+        problem.bound_independent("least rest change", lambda: change)
+        problem.remember_at_rest(p, f, values)
+        return p, float(distance)
+    return None
+
+
+#: _confirmed's outcomes: the start and its distance; no optimum (a singular rest system, or a box
+#: that admits no multiplier: the Python path says which); the rest system is not square
+_CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
+
+
+@numba.njit(cache=True)
+def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
+               multiplier, bend, rest, lengths, position, dgbtrf, dgbtrs, near, clock, clock_id,
+               seconds):  # pragma: no cover - compiled
+    """(outcome, change, p, f(p0), dc/dp(p0) values, f(p), dc/dp(p) values, KKT distance) of
+    confirmed_start; seconds[0] and [1] accumulate model evaluation and linear algebra (as the
+    Python path's timing splits them)."""
+    buffer = np.zeros(2, dtype=np.int64)
+    empty = np.empty(0)
+    start = timing.clock_seconds(clock, clock_id, buffer)
+    c0, f0 = at_rest_residual(p0, forces_args, free, row_scale)
+    values0 = at_rest.jacobian_values(p0, *jacobian_args)
+    now = timing.clock_seconds(clock, clock_id, buffer)
+    seconds[0] += now - start
+    # statics_start.square_rest_system: the rest columns that act are as many as the free DOFs
+    norms = csc_column_norms(indptr, values0)
+    columns = np.empty(norms.size, dtype=np.bool_)
+    acting = 0
+    for j in range(norms.size):
+        columns[j] = rest_mask[j] and norms[j] > 0.0
+        acting += columns[j]
+    if acting != free.size:
+        return _NOT_SQUARE, empty, empty, f0, values0, empty, empty, np.inf
+    # alm._least_rest_change: J_R d = -c(p0) by square_column_solve
+    start = now
+    change = square_solution(dgbtrf, dgbtrs, indptr, indices, values0, columns, -c0)
+    now = timing.clock_seconds(clock, clock_id, buffer)
+    seconds[1] += now - start
+    if change.size == 0 or not np.all(np.isfinite(change)):
+        return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf
+    optimum = statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
+    if optimum.size == 0:
+        return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf
+    p = np.minimum(np.maximum(optimum, lower), upper)  # solve_alm's np.clip
+    start = timing.clock_seconds(clock, clock_id, buffer)
+    c, f = at_rest_residual(p, forces_args, free, row_scale)
+    values = at_rest.jacobian_values(p, *jacobian_args)
+    now = timing.clock_seconds(clock, clock_id, buffer)
+    seconds[0] += now - start
+    distance = band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, values, position, w, w * (p - p0), c, p, lower,
+                                 upper, near)
+    seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+    return _CONFIRMED, change, p, f0, values0, f, values, distance
