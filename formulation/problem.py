@@ -189,6 +189,10 @@ class Problem:
         which every solve of the stabilization's floored twins would otherwise factor again)."""
         return _memo(self._memos["bound_independent"], key, build)
 
+    def remembered(self, key: str):
+        """The ``bound_independent`` quantity ``key`` if this problem or a twin computed it, else None."""
+        return self._memos["bound_independent"].get(key)
+
     def _by_p(self, kind: str, p, build, limit: int):
         """``build()`` remembered in the ``kind`` memo by p's values (the last ``limit`` p)."""
         return _memo(self._memos[kind], self.check_parameters(p).tobytes(), build, limit)

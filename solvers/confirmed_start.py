@@ -43,17 +43,21 @@ def confirmed_start(problem: Problem, near: float = 1e-6) -> tuple[np.ndarray, f
     position = band_order(indptr, indices, free.size)
     if position is None:
         return None
+    known = problem.remembered("least rest change")  # by a twin: the stabilization's floored problems
+    if known is not None and not problem.remembered("square rest system"):
+        return None  # the saddle system's least change: statics_start does not apply
     layout = problem.layout
     rate, multiplier, bend, rest = statics_indices(problem)
     seconds = np.zeros(2)
     outcome, change, p, f0, values0, f, values, distance = _confirmed(
         forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
         layout.weights, layout.lower, layout.upper, rate, multiplier, bend, rest, problem.edge_lengths, position,
-        lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK, seconds)
+        np.empty(0) if known is None else known, lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK, seconds)
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
-    problem.remember_at_rest(layout.p0, f0, values0)
-    problem.bound_independent("square rest system", lambda: outcome != _NOT_SQUARE)
+    if f0.size:  # evaluated at p0 here
+        problem.remember_at_rest(layout.p0, f0, values0)
+        problem.bound_independent("square rest system", lambda: outcome != _NOT_SQUARE)
     if outcome == _CONFIRMED:
         problem.bound_independent("least rest change", lambda: change)
         problem.remember_at_rest(p, f, values)
@@ -68,13 +72,18 @@ _CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
 
 @numba.njit(cache=True)
 def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
-               multiplier, bend, rest, lengths, position, dgbtrf, dgbtrs, near, clock, clock_id,
+               multiplier, bend, rest, lengths, position, known, dgbtrf, dgbtrs, near, clock, clock_id,
                seconds):  # pragma: no cover - compiled
     """(outcome, change, p, f(p0), dc/dp(p0) values, f(p), dc/dp(p) values, KKT distance) of
-    confirmed_start; seconds[0] and [1] accumulate model evaluation and linear algebra (as the
-    Python path's timing splits them)."""
+    confirmed_start; ``known``: the least rest change if known (then nothing is evaluated at p0 and
+    f(p0), dc/dp(p0) are empty), else empty. seconds[0] and [1] accumulate model evaluation and
+    linear algebra (as the Python path's timing splits them)."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
+    if known.size:
+        return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
+                                  rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
+                                  dgbtrs, near, clock, clock_id, seconds)
     start = timing.clock_seconds(clock, clock_id, buffer)
     c0, f0 = at_rest_residual(p0, forces_args, free, row_scale)
     values0 = at_rest.jacobian_values(p0, *jacobian_args)
@@ -96,6 +105,19 @@ def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, res
     seconds[1] += now - start
     if change.size == 0 or not np.all(np.isfinite(change)):
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf
+    return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
+                              multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near,
+                              clock, clock_id, seconds)
+
+
+@numba.njit(cache=True)
+def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
+                       multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
+                       clock_id, seconds):  # pragma: no cover - compiled
+    """_confirmed from the least rest change on: the optimum it fixes, c and dc/dp there, the KKT
+    distance (f0, values0: passed through)."""
+    buffer = np.zeros(2, dtype=np.int64)
+    empty = np.empty(0)
     optimum = statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
     if optimum.size == 0:
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf

@@ -34,6 +34,12 @@ def test_the_compiled_start_and_distance_are_the_python_paths(vertices):
             assert np.array_equal(compiled.strand_jacobian(point).data, python.strand_jacobian(point).data)
         assert np.array_equal(compiled.bound_independent("least rest change", lambda: None),
                               alm._least_rest_change(python))
+        floors = python.layout.lower.copy()  # a stabilization's twin: from the remembered least change
+        floors[python.layout.blocks["bend_stiffness"][:3]] = 1.5
+        p, distance = confirmed_start(compiled.with_lower_bounds(floors))
+        twin = python.with_lower_bounds(floors)
+        start = np.clip(alm.linear_start(twin), twin.layout.lower, twin.layout.upper)
+        assert np.array_equal(p, start) and distance == python_kkt_distance(twin, start)
 
 
 def test_asc_solves_a_groom_strand_the_same_with_and_without_the_compiled_start(monkeypatch):
