@@ -179,6 +179,7 @@ class _LayoutStructure:
     size: int
     edge_index: np.ndarray    # (n - 1, 2)
     vertex_index: np.ndarray  # (n - 2, 7)
+    defaults: tuple           # _default_recipe's arrays: how _default_values fills p0, the box and shares
     concatenated: dict = field(default_factory=dict, compare=False)  # ParameterLayout.concatenated_blocks
     slot_coefficients: dict = field(default_factory=dict, compare=False)  # _slot_map's, by stencil kind
 
@@ -236,9 +237,77 @@ def _layout_structure(n_vertices: int, active: tuple, strand_level: bool, couple
         slot(n_inner, "rest_curvature", curvature_rows(0)), slot(n_inner, "rest_curvature", curvature_rows(1)),
         slot(n_inner, "rest_twist", inner), slot(n_inner, "bend_stiffness", inner), slot(n_inner, twist_block, inner),
     ], axis=1)
-    for array in (*blocks.values(), edge_index, vertex_index):
+    defaults = _default_recipe(blocks, contact_width)
+    for array in (*blocks.values(), edge_index, vertex_index, *defaults):
         array.flags.writeable = False  # shared by every layout of this shape
-    return _LayoutStructure(blocks, size, edge_index, vertex_index)
+    return _LayoutStructure(blocks, size, edge_index, vertex_index, defaults)
+
+
+#: how an entry of p gets its share of the strand (_default_recipe): none (1), its edge's, its
+#: vertex's Voronoi length, its contact vertex's half edges
+_NO_SHARE, _EDGE_SHARE, _VERTEX_SHARE, _CONTACT_SHARE = 0, 1, 2, 3
+#: ... and its p0 and default box: a stiffness multiplier, a rest length, a rest curvature, a rest
+#: twist, a contact force
+_STIFFNESS, _REST_LENGTH, _REST_CURVATURE, _REST_TWIST, _CONTACT = 0, 1, 2, 3, 4
+
+
+def _default_recipe(blocks: dict, contact_width: int) -> tuple[np.ndarray, ...]:
+    """(entry, share kind, element, default kind, value index) per entry of the blocks, in block
+    order: what ParameterLayout's defaults do to each (``_default_values``). element: the edge,
+    vertex or contact whose share the entry takes; value index: its place in the rest curvatures
+    (flattened) or twists at q*."""
+    parts = []
+    for b, ix in blocks.items():
+        k = np.arange(ix.size)
+        if b in _EDGE_BLOCKS:
+            share, element = _EDGE_SHARE, k
+        elif b in _VERTEX_BLOCKS:
+            share, element = _VERTEX_SHARE, k // _VERTEX_BLOCKS[b]
+        elif b == CONTACT_BLOCK:
+            share, element = _CONTACT_SHARE, k // contact_width
+        else:
+            share, element = _NO_SHARE, k
+        default = {"rest_length": _REST_LENGTH, "rest_curvature": _REST_CURVATURE, "rest_twist": _REST_TWIST,
+                   CONTACT_BLOCK: _CONTACT}.get(b, _STIFFNESS)
+        parts.append((ix, np.full(ix.size, share), element, np.full(ix.size, default), k))
+    return tuple(np.concatenate([part[a] for part in parts]).astype(np.int64) if parts else np.zeros(0, dtype=np.int64)
+                 for a in range(5))
+
+
+@numba.njit(cache=True)
+def _default_values(entry, share_kind, element, default_kind, value_index, size, lengths, total, rest_curvature,
+                    rest_twist, curvature_budget, twist_budget, contacts):  # pragma: no cover - compiled
+    """(p0, lower, upper, share, weights) of ParameterLayout's defaults, from its structure's
+    _default_recipe (lengths: l0; total: their numpy sum; rest_curvature flattened): each entry's
+    share of the strand's length (module docstring) and its default box, with the arithmetic of
+    numpy's block-by-block version (voronoi = 0.5 (l_{i-1} + l_i), then / total)."""
+    p0, lower, upper, share = np.zeros(size), np.zeros(size), np.zeros(size), np.ones(size)
+    for e in range(entry.size):
+        j, i = entry[e], element[e]
+        if share_kind[e] == _EDGE_SHARE:
+            share[j] = lengths[i] / total
+        elif share_kind[e] == _VERTEX_SHARE:
+            share[j] = 0.5 * (lengths[i] + lengths[i + 1]) / total
+        elif share_kind[e] == _CONTACT_SHARE:  # the vertex's half edges (the tip has one)
+            vertex = contacts[i]
+            share[j] = 0.5 * (lengths[vertex - 1] + (lengths[vertex] if vertex < lengths.size else 0.0)) / total
+    weights = share.copy()
+    for e in range(entry.size):
+        j, kind = entry[e], default_kind[e]
+        if kind == _STIFFNESS:
+            p0[j], lower[j], upper[j] = 1.0, STIFFNESS_BOX[0], STIFFNESS_BOX[1]
+        elif kind == _REST_LENGTH:
+            p0[j], lower[j], upper[j] = 0.0, -RELATIVE_LENGTH_BOX, RELATIVE_LENGTH_BOX
+        elif kind == _REST_CURVATURE:
+            value, half = rest_curvature[value_index[e]], curvature_budget * share[j]
+            p0[j], lower[j], upper[j] = value, value + -half, value + half
+        elif kind == _REST_TWIST:
+            value, half = rest_twist[value_index[e]], twist_budget * share[j]
+            p0[j], lower[j], upper[j] = value, value + -half, value + half
+        else:  # a contact force
+            p0[j], lower[j], upper[j] = 0.0, 0.0, CONTACT_MAX
+            weights[j] *= CONTACT_WEIGHT
+    return p0, lower, upper, share, weights
 
 
 def _slot_map(index: np.ndarray, constants: list, coefficients: list, known: dict | None = None) -> SlotMap:
@@ -279,7 +348,7 @@ class ParameterLayout:
         if stiffness not in STIFFNESS_MODES:
             raise ValueError(f"stiffness must be one of {STIFFNESS_MODES}, got {stiffness!r}")
         self.stiffness, self.couple_twist = stiffness, couple_twist
-        n_edges, n_inner = n_vertices - 1, n_vertices - 2
+        n_inner = n_vertices - 2
         active = tuple(b for b in BLOCKS if b in optimize and
                        not (b in STIFFNESS_BLOCKS and stiffness != "element") and
                        not (b == "twist_stiffness" and couple_twist))
@@ -290,45 +359,18 @@ class ParameterLayout:
         self.blocks, self.size = dict(structure.blocks), structure.size
         self._structure = structure
 
-        # ---- p0, default box, weights ----
+        # ---- p0, default box, weights: each element's share of the strand's length (regularizer,
+        # module docstring), rest shapes at q* with their budgets' boxes, multipliers at 1 ----
         lengths = np.asarray(edge_lengths, dtype=float)
-        voronoi = 0.5 * (lengths[:-1] + lengths[1:])
-        share = voronoi / lengths.sum()
         budgets = dict(BUDGETS)
         bounds = dict(bounds or {})
         for key in BUDGETS:
             if key in bounds:
                 budgets[key] = _budget(key, bounds.pop(key))
-        defaults = {
-            "rest_length": (np.zeros(n_edges), -RELATIVE_LENGTH_BOX, RELATIVE_LENGTH_BOX),
-            "rest_curvature": (np.asarray(rest_curvature0, dtype=float).reshape(-1),
-                               -np.repeat(budgets["curvature_budget"] * share, 2),
-                               np.repeat(budgets["curvature_budget"] * share, 2)),
-            "rest_twist": (np.asarray(rest_twist0, dtype=float), -budgets["twist_budget"] * share,
-                           budgets["twist_budget"] * share),
-        }
-        self.p0, self.lower, self.upper = np.zeros(self.size), np.zeros(self.size), np.zeros(self.size)
-        # each element's share of the strand's length (regularizer, module docstring)
-        self.share = np.ones(self.size)
-        edge_share = lengths / lengths.sum()
-        for b, ix in self.blocks.items():
-            if b in _EDGE_BLOCKS:
-                self.share[ix] = edge_share
-            elif b in _VERTEX_BLOCKS:
-                self.share[ix] = np.repeat(share, _VERTEX_BLOCKS[b])
-            elif b == CONTACT_BLOCK:  # the vertex's half edges (the tip has one)
-                half = 0.5 * (lengths[self.contacts - 1] + np.r_[lengths, 0.0][self.contacts]) / lengths.sum()
-                self.share[ix] = np.repeat(half, ix.size // self.contacts.size)
-        self.weights = self.share.copy()
-        for b, ix in self.blocks.items():
-            if b == CONTACT_BLOCK:
-                self.p0[ix], self.lower[ix], self.upper[ix] = 0.0, 0.0, CONTACT_MAX
-                self.weights[ix] *= CONTACT_WEIGHT
-            elif b in defaults:
-                p0, lo, hi = defaults[b]
-                self.p0[ix], self.lower[ix], self.upper[ix] = p0, p0 + lo, p0 + hi
-            else:
-                self.p0[ix], self.lower[ix], self.upper[ix] = 1.0, *STIFFNESS_BOX
+        self.p0, self.lower, self.upper, self.share, self.weights = _default_values(
+            *structure.defaults, self.size, lengths, float(lengths.sum()),
+            np.ascontiguousarray(rest_curvature0, dtype=float).reshape(-1), np.ascontiguousarray(rest_twist0, dtype=float),
+            float(budgets["curvature_budget"]), float(budgets["twist_budget"]), self.contacts)
         self._apply_user(bounds, weights)
         self.validate()
 

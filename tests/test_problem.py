@@ -315,6 +315,45 @@ def test_user_bounds_weights_and_budgets():
         sagfree.Problem(sagfree.scenes.horizontal(n=8), curvature="3d")
 
 
+@pytest.mark.parametrize("contacts", [(), (1, 5, 11)])  # 11: the tip of a 12-vertex strand
+def test_the_default_layout_is_its_rules_entry_by_entry(contacts):
+    """p0, box, share and weight of every entry as parameters' module docstring states them (each
+    element's share of L: edges l_e / L, vertices their Voronoi length, a contact its vertex's half
+    edges), here by numpy block by block, there by one compiled pass over the structure's recipe."""
+    from sagfree.formulation.parameters import (BUDGETS, CONTACT_MAX, CONTACT_WEIGHT, RELATIVE_LENGTH_BOX,
+                                                STIFFNESS_BOX, ParameterLayout)
+    rng = np.random.default_rng(1)
+    n, width = 12, 4
+    l0 = rng.uniform(0.5e-3, 2e-3, n - 1)
+    kappa, twist = rng.normal(size=(n - 2, 2)), rng.normal(size=n - 2)
+    layout = ParameterLayout(n, l0, kappa, twist, 2e9, 7e8, contacts=np.array(contacts, dtype=int),
+                             contact_width=width)
+    L = l0.sum()
+    edge, vertex = l0 / L, 0.5 * (l0[:-1] + l0[1:]) / L
+    expected = {  # block: (p0, half width of the box or its bounds, share)
+        "rest_length": (0.0, (-RELATIVE_LENGTH_BOX, RELATIVE_LENGTH_BOX), edge),
+        "stretch_stiffness": (1.0, STIFFNESS_BOX, edge),
+        "rest_curvature": (kappa.ravel(), np.repeat(BUDGETS["curvature_budget"] * vertex, 2), np.repeat(vertex, 2)),
+        "rest_twist": (twist, BUDGETS["twist_budget"] * vertex, vertex),
+        "bend_stiffness": (1.0, STIFFNESS_BOX, vertex),
+    }
+    for block, (p0, box, share) in expected.items():
+        ix = layout.blocks[block]
+        lower, upper = (p0 - box, p0 + box) if isinstance(box, np.ndarray) else (p0 * 0 + box[0], p0 * 0 + box[1])
+        assert np.array_equal(layout.p0[ix], np.broadcast_to(p0, ix.shape)), block
+        assert np.array_equal(layout.lower[ix], np.broadcast_to(lower, ix.shape)), block
+        assert np.array_equal(layout.upper[ix], np.broadcast_to(upper, ix.shape)), block
+        assert np.array_equal(layout.share[ix], share) and np.array_equal(layout.weights[ix], share), block
+    if contacts:
+        ix = layout.blocks["contact_force"]
+        half = np.repeat([0.5 * (l0[v - 1] + (l0[v] if v < n - 1 else 0.0)) / L for v in contacts], width)
+        assert np.array_equal(layout.share[ix], half) and np.array_equal(layout.weights[ix], half * CONTACT_WEIGHT)
+        assert np.all(layout.p0[ix] == 0) and np.all(layout.lower[ix] == 0) and np.all(layout.upper[ix] == CONTACT_MAX)
+    else:
+        assert "contact_force" not in layout.blocks
+    assert sum(ix.size for ix in layout.blocks.values()) == layout.size  # every entry has its rule
+
+
 def dense_stability(pb, p):
     """Smallest eigenvalue of H_F v = lambda M_F v, dense (scipy), and its eigenvector."""
     dense = pb.hessian(p)[pb.free][:, pb.free].toarray()
