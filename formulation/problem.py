@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, principal_band_gather
-from sagfree.linalg.eigen import scaled_block_eigenpair, smallest_eigenpair
+from sagfree.linalg.eigen import scaled_block_eigenpair, smallest_eigenpair, start_vector
 from sagfree.linalg.timing import MODEL, timed
 
 from . import at_rest, dofs
@@ -442,6 +442,26 @@ class Problem:
         return ((*inputs, self.edge_dofs, self.vertex_dofs, self.external_forces, *gradients),
                 (*inputs, contact, *jacobians, *pattern.scatter_plan), self.free_index, self._free_row_scale,
                 (pattern.indptr, pattern.indices, pattern.csr_indptr, pattern.csr_indices, pattern.csr_order))
+
+    @functools.cached_property
+    def stability_kernels(self):
+        """What a compiled call needs to evaluate ``stability(p, vector=True)`` at q* off p0 without
+        Python (solvers.confirmed_start), or None where the stencils are not compiled or bodies may
+        support the strand: (at_rest.hessian_band's arguments after p, linalg.eigen.block_eigenpair's
+        after the band, the mass scale s and the free DOFs' indices: v[free] = mode * s)."""
+        if self._compiled_hessian is None or self.contacts.count:
+            return None
+        if self._band_scatter is None:
+            self._band_scatter = _band_scatter([self.edge_dofs, self.vertex_dofs], self.q_star.size)
+        scale, row_scale, column_scale = self._mass_scaling
+        return ((*self._compiled_hessian, *self._band_scatter, HALF_BANDWIDTH + 1, self.q_star.size),
+                (*self._free_gather, scale.size, row_scale, column_scale, start_vector(scale.size)), scale,
+                self.free_index)
+
+    def remember_stability(self, p, value: float, v: np.ndarray) -> None:
+        """Store ``stability(p, vector=True)`` at q*, computed by a compiled call from
+        ``stability_kernels``, in the memo ``stability`` reads."""
+        self._by_p("stability", p, lambda: (value, v), STABILITY_MEMO)
 
     def remember_at_rest(self, p, forces: np.ndarray, jacobian_values: np.ndarray) -> None:
         """Store f(q*, p) and the CSC values of dc/dp at p, computed by a compiled loop from

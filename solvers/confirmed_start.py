@@ -18,25 +18,31 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sagfree.contract.optimality import band_kkt_distance
+from sagfree.contract.optimality import KKT_TOL, TOL, band_kkt_distance
 from sagfree.formulation import at_rest
 from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.compressed import csc_column_norms
+from sagfree.linalg.eigen import block_eigenpair
 from sagfree.linalg.saddle import band_order
 from sagfree.linalg.square import square_solution
 
-from .gauss_newton import at_rest_residual
+from .gauss_newton import at_rest_residual, largest_magnitude
 from .statics_start import applies, statics_indices, statics_optimum
 
 
-def confirmed_start(problem: Problem, near: float = 1e-6) -> tuple[np.ndarray, float] | None:
-    """(p, KKT distance at p) of asc's start where statics_start applies (module docstring), the
-    distance as ``kkt_optimality(problem, p, near)``; None elsewhere. Fills the Problem's memos: c
-    and dc/dp at p0 and at p, the least rest change and the square-system verdict."""
-    kernels = problem.at_rest_kernels
-    if kernels is None or timing.CLOCK is None or not applies(problem):
+def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL,
+                    near: float = 1e-6) -> tuple[np.ndarray, float, float] | None:
+    """(p, KKT distance at p, seconds of the stability evaluation) of asc's start where
+    statics_start applies (module docstring), the distance as ``kkt_optimality(problem, p,
+    near)``; None elsewhere. Fills the Problem's memos: c and dc/dp at p0 and at p, the least rest
+    change and the square-system verdict, and where the start is confirmed (|c|_inf <= tol,
+    distance <= kkt_tol) the stability at p that its Result reports. That evaluation is the
+    Result's measurement, not the solve's: its seconds are for solve_alm to leave out of the time,
+    as make_result's are."""
+    kernels, stability = problem.at_rest_kernels, problem.stability_kernels
+    if kernels is None or stability is None or timing.CLOCK is None or not applies(problem):
         return None
     forces_args, jacobian_args, free, row_scale, structure = kernels
     indptr, indices = structure[0], structure[1]
@@ -49,10 +55,14 @@ def confirmed_start(problem: Problem, near: float = 1e-6) -> tuple[np.ndarray, f
     layout = problem.layout
     rate, multiplier, bend, rest = statics_indices(problem)
     seconds = np.zeros(2)
-    outcome, change, p, f0, values0, f, values, distance = _confirmed(
+    # the stabilization's twins land where their re-solve starts and measured its stability there
+    measured = known is None
+    seconds = np.zeros(3)
+    outcome, change, p, f0, values0, f, values, distance, eigenvalue, mode = _confirmed(
         forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
         layout.weights, layout.lower, layout.upper, rate, multiplier, bend, rest, problem.edge_lengths, position,
-        np.empty(0) if known is None else known, lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK, seconds)
+        np.empty(0) if known is None else known, lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK,
+        float(tol) if measured else -1.0, float(kkt_tol), *stability, seconds)
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     if f0.size:  # evaluated at p0 here
@@ -61,7 +71,9 @@ def confirmed_start(problem: Problem, near: float = 1e-6) -> tuple[np.ndarray, f
     if outcome == _CONFIRMED:
         problem.bound_independent("least rest change", lambda: change)
         problem.remember_at_rest(p, f, values)
-        return p, float(distance)
+        if mode.size:
+            problem.remember_stability(p, float(eigenvalue), mode)
+        return p, float(distance), float(seconds[2])
     return None
 
 
@@ -72,18 +84,21 @@ _CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
 
 @numba.njit(cache=True)
 def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
-               multiplier, bend, rest, lengths, position, known, dgbtrf, dgbtrs, near, clock, clock_id,
-               seconds):  # pragma: no cover - compiled
-    """(outcome, change, p, f(p0), dc/dp(p0) values, f(p), dc/dp(p) values, KKT distance) of
-    confirmed_start; ``known``: the least rest change if known (then nothing is evaluated at p0 and
-    f(p0), dc/dp(p0) are empty), else empty. seconds[0] and [1] accumulate model evaluation and
-    linear algebra (as the Python path's timing splits them)."""
+               multiplier, bend, rest, lengths, position, known, dgbtrf, dgbtrs, near, clock, clock_id, tol, kkt_tol,
+               hessian_args, eigen_args, scale, free_index, seconds):  # pragma: no cover - compiled
+    """(outcome, change, p, f(p0), dc/dp(p0) values, f(p), dc/dp(p) values, KKT distance,
+    smallest eigenvalue at p, its mode) of confirmed_start; ``known``: the least rest change if
+    known (then nothing is evaluated at p0 and f(p0), dc/dp(p0) are empty), else empty; the
+    stability is measured where the start is confirmed (|c|_inf <= tol and the distance <= kkt_tol;
+    tol < 0: never), else the mode is empty. seconds[0] and [1] accumulate model evaluation and
+    linear algebra (as the Python path's timing splits them), seconds[2] the stability's."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
+    stability = (tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
     if known.size:
         return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
                                   rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
-                                  dgbtrs, near, clock, clock_id, seconds)
+                                  dgbtrs, near, clock, clock_id, stability, seconds)
     start = timing.clock_seconds(clock, clock_id, buffer)
     c0, f0 = at_rest_residual(p0, forces_args, free, row_scale)
     values0 = at_rest.jacobian_values(p0, *jacobian_args)
@@ -97,30 +112,31 @@ def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, res
         columns[j] = rest_mask[j] and norms[j] > 0.0
         acting += columns[j]
     if acting != free.size:
-        return _NOT_SQUARE, empty, empty, f0, values0, empty, empty, np.inf
+        return _NOT_SQUARE, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
     # alm._least_rest_change: J_R d = -c(p0) by square_column_solve
     start = now
     change = square_solution(dgbtrf, dgbtrs, indptr, indices, values0, columns, -c0)
     now = timing.clock_seconds(clock, clock_id, buffer)
     seconds[1] += now - start
     if change.size == 0 or not np.all(np.isfinite(change)):
-        return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf
+        return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
     return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
                               multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near,
-                              clock, clock_id, seconds)
+                              clock, clock_id, stability, seconds)
 
 
 @numba.njit(cache=True)
 def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
                        multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
-                       clock_id, seconds):  # pragma: no cover - compiled
+                       clock_id, stability, seconds):  # pragma: no cover - compiled
     """_confirmed from the least rest change on: the optimum it fixes, c and dc/dp there, the KKT
-    distance (f0, values0: passed through)."""
+    distance and the stability (f0, values0: passed through; stability: _confirmed's arguments of
+    the stability evaluation)."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
     optimum = statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
     if optimum.size == 0:
-        return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf
+        return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
     p = np.minimum(np.maximum(optimum, lower), upper)  # solve_alm's np.clip
     start = timing.clock_seconds(clock, clock_id, buffer)
     c, f = at_rest_residual(p, forces_args, free, row_scale)
@@ -129,5 +145,16 @@ def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indi
     seconds[0] += now - start
     distance = band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, values, position, w, w * (p - p0), c, p, lower,
                                  upper, near)
-    seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
-    return _CONFIRMED, change, p, f0, values0, f, values, distance
+    start = timing.clock_seconds(clock, clock_id, buffer)
+    seconds[1] += start - now
+    tol, kkt_tol, hessian_args, eigen_args, scale, free_index = stability
+    eigenvalue, mode = np.nan, empty
+    # Problem.stability at q* (its hessian_band's compiled path, which p0 itself does not take)
+    if 0.0 <= tol and largest_magnitude(c) <= tol and distance <= kkt_tol and not np.array_equal(p, p0):
+        band = at_rest.hessian_band(p, *hessian_args)
+        eigenvalue, free_mode = block_eigenpair(band, *eigen_args)
+        mode = np.zeros(hessian_args[-1])
+        for k in range(free_index.size):
+            mode[free_index[k]] = free_mode[k] * scale[k]
+        seconds[2] += timing.clock_seconds(clock, clock_id, buffer) - start
+    return _CONFIRMED, change, p, f0, values0, f, values, distance, eigenvalue, mode

@@ -198,7 +198,7 @@ def at_rest_residual(p, forces_args, free, row_scale):  # pragma: no cover - com
 
 
 @numba.njit(cache=True)
-def _largest_magnitude(c):  # pragma: no cover - compiled
+def largest_magnitude(c):  # pragma: no cover - compiled
     """np.abs(c).max(initial=0.0)."""
     largest = 0.0
     for value in c:
@@ -277,7 +277,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
         if counts[_GAUSS_NEWTON] - steps_before >= INNER_STEPS:
             reason = CRAWL  # a crawling inner solve: the outer loop (SQP step or mu) decides
             break
-        violation = _largest_magnitude(c)
+        violation = largest_magnitude(c)
         progress_violation[tried], progress_optimality[tried] = violation, optimality
         tried += 1
         if (violation <= CRAWL_NEAR * tol and tried > CRAWL_WINDOW
@@ -375,7 +375,7 @@ def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_
         scale = np.empty(n)
         for j in range(n):
             scale[j] = w[j] + norms[j] + 1e-300
-        steps[recorded] = _largest_magnitude(c)
+        steps[recorded] = largest_magnitude(c)
         recorded += 1
         if stalled >= STALL:
             reason = NO_PROGRESS  # L no longer decreases above its rounding: the outer loop decides

@@ -24,10 +24,14 @@ def python_kkt_distance(problem, p):
 def test_the_compiled_start_and_distance_are_the_python_paths(vertices):
     for strand in sagfree.scenes.groom(6, vertices, seed=2):
         compiled, python = Problem(strand), Problem(strand)
-        p, distance = confirmed_start(compiled)
+        p, distance, _ = confirmed_start(compiled)
         start = np.clip(alm.linear_start(python), python.layout.lower, python.layout.upper)
         assert np.array_equal(p, start)
         assert distance == python_kkt_distance(python, start) <= 1e-8  # the start is the optimum
+        value, mode = python.stability(p, vector=True)  # its Result's stability, remembered
+        assert compiled._memos["stability"] and np.isfinite(value)
+        remembered, remembered_mode = compiled.stability(p, vector=True)
+        assert remembered == value and np.array_equal(remembered_mode, mode)
         p0 = python.layout.p0  # the memos it filled hold what the Python path computes
         for point in (p0, p):
             assert np.array_equal(compiled.residual(point), python.residual(point))
@@ -36,7 +40,8 @@ def test_the_compiled_start_and_distance_are_the_python_paths(vertices):
                               alm._least_rest_change(python))
         floors = python.layout.lower.copy()  # a stabilization's twin: from the remembered least change
         floors[python.layout.blocks["bend_stiffness"][:3]] = 1.5
-        p, distance = confirmed_start(compiled.with_lower_bounds(floors))
+        p, distance, measured = confirmed_start(compiled.with_lower_bounds(floors))
+        assert measured == 0  # a twin's start: its landing measured the stability there
         twin = python.with_lower_bounds(floors)
         start = np.clip(alm.linear_start(twin), twin.layout.lower, twin.layout.upper)
         assert np.array_equal(p, start) and distance == python_kkt_distance(twin, start)
@@ -45,7 +50,7 @@ def test_the_compiled_start_and_distance_are_the_python_paths(vertices):
 def test_asc_solves_a_groom_strand_the_same_with_and_without_the_compiled_start(monkeypatch):
     strand = sagfree.scenes.groom(3, 60, seed=0)[1]
     compiled = sagfree.solve(Problem(strand, stabilize=False), "asc")
-    monkeypatch.setattr(alm, "confirmed_start", lambda problem: None)
+    monkeypatch.setattr(alm, "confirmed_start", lambda *args: None)
     python = sagfree.solve(Problem(strand, stabilize=False), "asc")
     assert compiled.status == python.status == "converged"
     assert np.array_equal(compiled.p, python.p) and compiled.message == python.message

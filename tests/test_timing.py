@@ -60,7 +60,7 @@ def test_a_kernel_compiled_during_a_solve_is_setup_not_solve_time(monkeypatch):
         return x.sum() * 0.0
 
     original = alm.kkt_optimality  # every converged asc solve confirms its point by it (on the
-    monkeypatch.setattr(alm, "confirmed_start", lambda problem: None)  # Python path, from here)
+    monkeypatch.setattr(alm, "confirmed_start", lambda *args: None)  # Python path, from here)
     calls = []
 
     def compiling_check(*args, **kwargs):

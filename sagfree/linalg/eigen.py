@@ -41,7 +41,7 @@ def smallest_eigenpair(band: np.ndarray) -> tuple[float, np.ndarray]:
     n = band.shape[1]
     if n == 0:
         raise ValueError("the matrix is empty")
-    return _eigenpair(np.ascontiguousarray(band), _start_vector(n))
+    return _eigenpair(np.ascontiguousarray(band), start_vector(n))
 
 
 @timed(LINEAR_ALGEBRA)
@@ -52,12 +52,14 @@ def scaled_block_eigenpair(band: np.ndarray, gather: tuple[np.ndarray, np.ndarra
     (R[k, j] = s[j + k], C[k, j] = s[j]). One compiled call (Problem.stability: the free DOFs'
     mass-normalized Hessian)."""
     target, source = gather
-    return _scaled_block_eigenpair(np.ascontiguousarray(band, dtype=float), target, source, size, row_scale,
-                                   column_scale, _start_vector(size))
+    return block_eigenpair(np.ascontiguousarray(band, dtype=float), target, source, size, row_scale,
+                                   column_scale, start_vector(size))
 
 
 @numba.njit(cache=True)
-def _scaled_block_eigenpair(band, target, source, size, row_scale, column_scale, v0):  # pragma: no cover
+def block_eigenpair(band, target, source, size, row_scale, column_scale, v0):  # pragma: no cover
+    """``scaled_block_eigenpair`` from the start vector v0 (``start_vector(size)``), callable from
+    compiled code."""
     rows = band.shape[0]
     flat, block = band.ravel(), np.zeros(rows * size)
     for k in range(target.size):
@@ -92,7 +94,7 @@ def _eigenpair(band, v0):  # pragma: no cover - compiled
 
 
 @functools.lru_cache(maxsize=16)
-def _start_vector(n: int) -> np.ndarray:
+def start_vector(n: int) -> np.ndarray:
     """The fixed Lanczos start of size n (read-only; results are reproducible)."""
     v0 = np.random.default_rng(0).standard_normal(n)
     v0.flags.writeable = False
