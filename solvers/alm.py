@@ -30,7 +30,9 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     chosen as the optimum's (solvers.statics_start): the start is the optimum. A start with
     |c|_inf <= tol is confirmed at once by the KKT distance (below), before any multiplier
     estimate or outer iteration (``outer`` = 0): for a root-held groom strand that check is
-    usually all that is left of its solve. Where it fails, the outer loop polishes. With bodies,
+    usually all that is left of its solve, and the start, the check and its Result's stability run
+    as one compiled call (solvers.confirmed_start; the Python steps where it does not apply). Where
+    the check fails, the outer loop polishes. With bodies,
     from p0: the same step with the supports (clipped at zero where it pulled) left the rest shape
     to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
     Lagrangian then lost feasibility from it. With a pinned tip, from p0 too: from the linear start

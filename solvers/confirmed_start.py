@@ -1,17 +1,21 @@
-"""asc's start for a strand held by its root alone, and its KKT confirmation, in one compiled call.
+"""asc's start for a strand held by its root alone, its KKT confirmation and its Result's stability,
+in one compiled call.
 
 Most strands of a groom are held by their root alone, and for them asc's start is the optimum
 (solvers.statics_start): ``solve_alm`` takes the least rest change at p0 (alm.linear_start: c and
 dc/dp at p0, one band LU of the square rest system), the optimum it fixes, c and dc/dp there, and
 the KKT distance that confirms it (contract.optimality.kkt_optimality: one band LU of the saddle
-system), and returns. Those compiled kernels took about half of that path's time and the Python
-between them the rest (benchmarks/study_compiled_floor.py); here they run in one compiled call, in
-the same order on the same inputs, so the start, the memos it fills and the distance are those of
-the Python path bit for bit (tests/test_confirmed_start.py). solve_alm then finds c and dc/dp at
-both points in the Problem's memos, and the least rest change where linear_start (the
-stabilization's landings) looks for it. Where the path does not apply (no compiled stencils,
-bodies, another attachment, a rest system that is not square or singular, a box that admits no
-multiplier) the call returns None and solve_alm takes its Python path.
+system), and returns a Result whose stability (Problem.stability: the stressed Hessian band and
+its smallest eigenpair) make_result measures. Those compiled kernels took about half of that path's
+time and the Python between them most of the rest (benchmarks/study_compiled_floor.py); here they
+run in one compiled call, in the same order on the same inputs, so the start, the distance and
+the memos it fills are the Python path's bit for bit (tests/test_confirmed_start.py): solve_alm
+then finds c and dc/dp at both points and the stability in the Problem's memos, and
+linear_start (the stabilization's landings) the least rest change. The stability is the Result's
+measurement, not the solve's: its seconds are returned for solve_alm to leave out of
+Result.time. Where the path does not apply (no compiled stencils, bodies, another attachment, a
+rest system that is not square or singular, a box that admits no multiplier) the call returns
+None and solve_alm takes its Python path.
 """
 from __future__ import annotations
 
