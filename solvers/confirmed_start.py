@@ -58,15 +58,14 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
         return None  # the saddle system's least change: statics_start does not apply
     layout = problem.layout
     rate, multiplier, bend, rest = statics_indices(problem)
-    seconds = np.zeros(2)
-    # the stabilization's twins land where their re-solve starts and measured its stability there
-    measured = known is None
+    # a twin's re-solve starts where its landing was checked, the stability measured there
+    measure = known is None
     seconds = np.zeros(3)
     outcome, change, p, f0, values0, f, values, distance, eigenvalue, mode = _confirmed(
         forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
         layout.weights, layout.lower, layout.upper, rate, multiplier, bend, rest, problem.edge_lengths, position,
         np.empty(0) if known is None else known, lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK,
-        float(tol) if measured else -1.0, float(kkt_tol), *stability, seconds)
+        float(tol) if measure else -1.0, float(kkt_tol), *stability, seconds)
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     if f0.size:  # evaluated at p0 here

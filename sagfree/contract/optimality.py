@@ -132,7 +132,7 @@ def band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regula
     """``kkt_optimality`` where the saddle system is a band (linalg.saddle.band_order gives
     ``position``) and no nearby factorization is offered: its loop line by line, the same
     arithmetic, in one compiled call (J in compressed columns; callable from compiled code, as
-    solvers.statics_start's confirmation calls it)."""
+    solvers.confirmed_start calls it)."""
     n = p.size
     scale = w + csc_column_norms(indptr, data) + 1e-300  # gradient_scale
     at_lower, active = np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_)

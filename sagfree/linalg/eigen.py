@@ -52,8 +52,8 @@ def scaled_block_eigenpair(band: np.ndarray, gather: tuple[np.ndarray, np.ndarra
     (R[k, j] = s[j + k], C[k, j] = s[j]). One compiled call (Problem.stability: the free DOFs'
     mass-normalized Hessian)."""
     target, source = gather
-    return block_eigenpair(np.ascontiguousarray(band, dtype=float), target, source, size, row_scale,
-                                   column_scale, start_vector(size))
+    return block_eigenpair(np.ascontiguousarray(band, dtype=float), target, source, size, row_scale, column_scale,
+                           start_vector(size))
 
 
 @numba.njit(cache=True)
