@@ -176,7 +176,7 @@ def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, r
                  edge_hessian, vertex_hessian, target, source, ones, rows, columns):  # pragma: no cover
     """d2E/dq2 at q* in lower band storage (rows x columns = 4n-1), as Problem.hessian_band sums it: the
     edge and vertex stencils' full Hessians (edge_hessian / vertex_hessian: their drivers'
-    addresses) scattered by the strand's band plan (target, source, ones: problem._band_scatter)."""
+    addresses) scattered by the strand's band plan (target, source, ones: Problem._band_plan)."""
     edge_physical, vertex_physical = _physical(p, edge_slots, vertex_slots)
     edges, edge_width = edge_q.shape
     vertices, vertex_width = vertex_q.shape

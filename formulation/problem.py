@@ -162,7 +162,6 @@ class Problem:
         self.kinematics_at_rest = (rest.kinematics, rest.kinematics_jacobian)
         self._free_row_scale = self.row_scale[self.free_index]
         self._free_gather = _free_gather(self.free_index, self.q_star.size)
-        self._band_scatter = None  # built on the first hessian_band call
         # what depends on p but not on the bounds, by p, shared with the with_lower_bounds twins: the
         # last few (lambda, mode) of stability at q* (a solver's Result, the stabilization loop and
         # the final Result ask for the same p), forces and dc/dp at q* (a solver's convergence test,
@@ -451,10 +450,8 @@ class Problem:
         after the band, the mass scale s and the free DOFs' indices: v[free] = mode * s)."""
         if self._compiled_hessian is None or self.contacts.count:
             return None
-        if self._band_scatter is None:
-            self._band_scatter = _band_scatter([self.edge_dofs, self.vertex_dofs], self.q_star.size)
         scale, row_scale, column_scale = self._mass_scaling
-        return ((*self._compiled_hessian, *self._band_scatter, HALF_BANDWIDTH + 1, self.q_star.size),
+        return ((*self._compiled_hessian, *self._band_plan, HALF_BANDWIDTH + 1, self.q_star.size),
                 (*self._free_gather, scale.size, row_scale, column_scale, start_vector(scale.size)), scale,
                 self.free_index)
 
@@ -562,10 +559,7 @@ class Problem:
         (every stability evaluation of a solution) one compiled call, at_rest.hessian_band, with the
         same sums.
         """
-        if self._band_scatter is None:
-            self._band_scatter = _band_scatter(
-                [self.edge_dofs, self.vertex_dofs], self.q_star.size)
-        target, source, ones = self._band_scatter
+        target, source, ones = self._band_plan
         size = self.q_star.size
         compiled = self._compiled_hessian if q is None and frames is None else None
         if compiled is not None and not np.array_equal(p, self.layout.p0):  # p0: _hessian_blocks' shortcut
@@ -573,6 +567,12 @@ class Problem:
                                         HALF_BANDWIDTH + 1, size)
         entries = np.concatenate([h.ravel() for _, h in self._hessian_blocks(p, q, frames)])
         return scatter_values(target, source, ones, entries, (HALF_BANDWIDTH + 1) * size).reshape(-1, size)
+
+    @functools.cached_property
+    def _band_plan(self):
+        """(target, source, ones): how hessian_band scatters the stencil Hessians into the band
+        (_band_scatter, shared by the strands of a size); made on first use."""
+        return _band_scatter([self.edge_dofs, self.vertex_dofs], self.q_star.size)
 
     @functools.cached_property
     def _compiled_hessian(self):

@@ -58,14 +58,12 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
         return None  # the saddle system's least change: statics_start does not apply
     layout = problem.layout
     rate, multiplier, bend, rest = statics_indices(problem)
-    # a twin's re-solve starts where its landing was checked, the stability measured there
-    measure = known is None
     seconds = np.zeros(3)
     outcome, change, p, f0, values0, f, values, distance, eigenvalue, mode = _confirmed(
         forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
         layout.weights, layout.lower, layout.upper, rate, multiplier, bend, rest, problem.edge_lengths, position,
         np.empty(0) if known is None else known, lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK,
-        float(tol) if measure else -1.0, float(kkt_tol), *stability, seconds)
+        float(tol), float(kkt_tol), *stability, seconds)
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     if f0.size:  # evaluated at p0 here
@@ -91,13 +89,14 @@ def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, res
                hessian_args, eigen_args, scale, free_index, seconds):  # pragma: no cover - compiled
     """(outcome, change, p, f(p0), dc/dp(p0) values, f(p), dc/dp(p) values, KKT distance,
     smallest eigenvalue at p, its mode) of confirmed_start; ``known``: the least rest change if
-    known (then nothing is evaluated at p0 and f(p0), dc/dp(p0) are empty), else empty; the
-    stability is measured where the start is confirmed (|c|_inf <= tol and the distance <= kkt_tol;
-    tol < 0: never), else the mode is empty. seconds[0] and [1] accumulate model evaluation and
+    known (then nothing is evaluated at p0 and f(p0), dc/dp(p0) are empty: a stabilization twin,
+    whose landing measured the stability where its re-solve starts), else empty; otherwise the
+    stability is measured where the start is confirmed (|c|_inf <= tol and the distance <= kkt_tol),
+    else the mode is empty. seconds[0] and [1] accumulate model evaluation and
     linear algebra (as the Python path's timing splits them), seconds[2] the stability's."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
-    stability = (tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
+    stability = (known.size == 0, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
     if known.size:
         return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
                                   rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
@@ -150,10 +149,10 @@ def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indi
                                  upper, near)
     start = timing.clock_seconds(clock, clock_id, buffer)
     seconds[1] += start - now
-    tol, kkt_tol, hessian_args, eigen_args, scale, free_index = stability
+    measure, tol, kkt_tol, hessian_args, eigen_args, scale, free_index = stability
     eigenvalue, mode = np.nan, empty
     # Problem.stability at q* (its hessian_band's compiled path, which p0 itself does not take)
-    if 0.0 <= tol and largest_magnitude(c) <= tol and distance <= kkt_tol and not np.array_equal(p, p0):
+    if measure and largest_magnitude(c) <= tol and distance <= kkt_tol and not np.array_equal(p, p0):
         band = at_rest.hessian_band(p, *hessian_args)
         eigenvalue, free_mode = block_eigenpair(band, *eigen_args)
         mode = np.zeros(hessian_args[-1])
