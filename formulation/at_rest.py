@@ -222,3 +222,58 @@ def unstressed_form(v, p0, edge_slots, vertex_slots, edge_q, edge_geometry, kine
             for m in range(kinematics_size):
                 total += motion[m] * by_vertex[s, n * kinematics_size + m] * motion[n]
     return total
+
+
+@numba.njit(cache=True)
+def stiffening_gradient(v, p, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry, kinematics_jacobian,
+                        edge_dofs, vertex_dofs, edge_hessian, vertex_hessian, youngs, shear, stretch_index,
+                        bend_index, twist_index, strand_index, couple_twist):  # pragma: no cover - compiled
+    """Problem.stiffening_gradient in one compiled call: v_s^T G_s v_s per element, G_s the Hessian
+    of its energy at unit multiplier with its rest shape at q*: the edge stencils' full Hessians at
+    zero rest strain and modulus E, the vertex stencils' u^T d2E/dk2 u (u = dk/dy v_s, as in
+    ``unstressed_form``) at kbar = kappa*, mbar = m* with moduli (E, 0) for bending and (0, G) for
+    twisting; into the multipliers' entries of p (the ``*_index`` arrays, empty where the layout
+    has no such block): stretch, bend (plus twist where ``couple_twist``), twist, and the strand's
+    one multiplier the sum of all (bend, twist, stretch). edge_hessian / vertex_hessian: the drivers
+    of the edge Hessian and of the vertex kinematics Hessian."""
+    gradient = np.zeros(p.size)
+    edges, edge_width = edge_q.shape
+    edge_physical = np.zeros((edges, 2))
+    edge_physical[:, 1] = youngs
+    by_edge = np.empty((edges, edge_width * edge_width))
+    _call(edge_hessian, edges, (edge_q, edge_geometry, edge_physical), by_edge)
+    stretch = np.zeros(edges)
+    for s in range(edges):
+        for j in range(edge_width):
+            vj = v[edge_dofs[s, j]]
+            for i in range(edge_width):
+                stretch[s] += v[edge_dofs[s, i]] * by_edge[s, j * edge_width + i] * vj
+    vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
+    motion = np.zeros((vertices, kinematics_size))
+    for s in range(vertices):
+        for m in range(kinematics_size):
+            for i in range(vertex_width):
+                motion[s, m] += kinematics_jacobian[s, m, i] * v[vertex_dofs[s, i]]
+    unstressed = evaluate_slots(vertex_slots[0], vertex_slots[1], vertex_slots[2], vertex_slots[3], p)
+    for s in range(vertices):  # kbar = kappa* (the 4d map adds the rotated pair), mbar = m*
+        unstressed[s, 2], unstressed[s, 3], unstressed[s, 4] = (vertex_geometry[s, 4], vertex_geometry[s, 5],
+                                                                 vertex_geometry[s, 3])
+    forms = np.zeros((2, vertices))  # bend, twist
+    by_vertex = np.empty((vertices, kinematics_size * kinematics_size))
+    for term in range(2):
+        unstressed[:, 5] = youngs if term == 0 else 0.0
+        unstressed[:, 6] = shear if term == 1 else 0.0
+        _call(vertex_hessian, vertices, (kinematics, vertex_geometry, unstressed), by_vertex)
+        for s in range(vertices):
+            for n in range(kinematics_size):
+                for m in range(kinematics_size):
+                    forms[term, s] += motion[s, m] * by_vertex[s, n * kinematics_size + m] * motion[s, n]
+    for k in range(stretch_index.size):
+        gradient[stretch_index[k]] = stretch[k]
+    for k in range(twist_index.size):
+        gradient[twist_index[k]] = forms[1, k]
+    for k in range(bend_index.size):
+        gradient[bend_index[k]] = forms[0, k] + (forms[1, k] if couple_twist else 0.0)
+    if strand_index.size:
+        gradient[strand_index[0]] = forms[0].sum() + forms[1].sum() + stretch.sum()
+    return gradient

@@ -55,6 +55,7 @@ from sagfree.solvers.alm import linear_start
 from sagfree.solvers.statics_start import square_rest_system
 
 from .best_effort import with_least_sag
+from .floor_steps import checked_floors, raised_floors
 
 #: Rounds of floors raised and solves repeated before giving up (status max_iterations).
 MAX_ROUNDS = 10
@@ -134,14 +135,13 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
             verdict = ("max_iterations", f"{result.message}; not stable after {MAX_ROUNDS} rounds of stiffness floors: smallest "
                        f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2")
             break
-        floors = _raised_floors(current, result.p, value, mode, stiffness)
+        floors = _next_floors(current, result.p, value, mode, stiffness)
         if floors is None:
             verdict = ("infeasible", f"{result.message}; cannot be stabilized inside the boxes: smallest "
                        f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2 and every stiffness multiplier that "
                        "would raise it is at its upper bound; relax the stiffness bounds (bounds={'bend_stiffness': "
                        "(1, 1000)}; command line: --bound bend_stiffness=1,1000)")
             break
-        floors = _floors_checked_by_restiffening(current, result.p, floors, stiffness)
         current = current.with_lower_bounds(floors)
         result = function(current, **options)
         counts = _add(counts, result.iterations)
@@ -149,21 +149,29 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
     return current, dataclasses.replace(result, iterations=counts), rounds, verdict
 
 
+def _next_floors(problem: Problem, p: np.ndarray, value: float, mode: np.ndarray, stiffness: np.ndarray):
+    """The floors of a round (module docstring, item 2) from p, the solution of ``problem`` with
+    smallest eigenvalue ``value`` and mode ``mode``: the first-order step, checked where it lands;
+    None if no multiplier that would raise the eigenvalue has room below its upper bound. One
+    compiled call where floor_steps applies (a strand held by its root alone), else these steps in
+    Python, with the same floors."""
+    applies, floors = checked_floors(problem, p, value, mode, stiffness, problem.stability_margin, OVERSHOOT,
+                                     RELEVANT, FLOOR_STEPS, TOL)
+    if applies:
+        return floors
+    floors = _raised_floors(problem, p, value, mode, stiffness)
+    return None if floors is None else _floors_checked_by_restiffening(problem, p, floors, stiffness)
+
+
 def _raised_floors(problem: Problem, p: np.ndarray, value: float, mode: np.ndarray, stiffness: np.ndarray):
     """The lower bounds of ``problem`` with the first-order step of the module docstring (item 2)
     from p, whose smallest eigenvalue is ``value`` with ``mode``; None if no multiplier that would
     raise it has room below its upper bound."""
-    gradient = problem.stiffening_gradient(p, mode)
-    room = stiffness & (p < problem.layout.upper)
-    room &= gradient > RELEVANT * gradient[stiffness].max(initial=0.0)
-    if not room.any():
-        return None
-    curvature = problem.layout.weights[room] + 1e-12
-    step = (OVERSHOOT * problem.stability_margin - value) / float(np.sum(gradient[room] ** 2 / curvature))
-    floors = problem.layout.lower.copy()
-    floors[room] = np.maximum(floors[room], np.minimum(p[room] + step * gradient[room] / curvature,
-                                                       problem.layout.upper[room]))
-    return floors
+    layout = problem.layout
+    floors = raised_floors(problem.stiffening_gradient(p, mode), np.ascontiguousarray(p, dtype=float), layout.lower,
+                           layout.upper, layout.weights, stiffness, float(value), float(problem.stability_margin),
+                           OVERSHOOT, RELEVANT)
+    return floors if floors.size else None
 
 
 def _floors_checked_by_restiffening(problem: Problem, p: np.ndarray, floors: np.ndarray,
