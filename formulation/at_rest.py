@@ -28,6 +28,8 @@ from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
+from sagfree.linalg.pairwise import pairwise_sum
+
 from .jacobian import scatter_values
 from .parameters import evaluate_slots
 
@@ -234,8 +236,9 @@ def stiffening_gradient(v, p, vertex_slots, edge_q, edge_geometry, kinematics, v
     ``unstressed_form``) at kbar = kappa*, mbar = m* with moduli (E, 0) for bending and (0, G) for
     twisting; into the multipliers' entries of p (the ``*_index`` arrays, empty where the layout
     has no such block): stretch, bend (plus twist where ``couple_twist``), twist, and the strand's
-    one multiplier the sum of all (bend, twist, stretch). edge_hessian / vertex_hessian: the drivers
-    of the edge Hessian and of the vertex kinematics Hessian."""
+    one multiplier the sum of all (bend, twist, stretch; numpy's pairwise sums). The numpy form's
+    numbers bit for bit. edge_hessian / vertex_hessian: the drivers of the edge Hessian and of the
+    vertex kinematics Hessian."""
     gradient = np.zeros(p.size)
     edges, edge_width = edge_q.shape
     edge_physical = np.zeros((edges, 2))
@@ -275,5 +278,5 @@ def stiffening_gradient(v, p, vertex_slots, edge_q, edge_geometry, kinematics, v
     for k in range(bend_index.size):
         gradient[bend_index[k]] = forms[0, k] + (forms[1, k] if couple_twist else 0.0)
     if strand_index.size:
-        gradient[strand_index[0]] = forms[0].sum() + forms[1].sum() + stretch.sum()
+        gradient[strand_index[0]] = pairwise_sum(forms[0]) + pairwise_sum(forms[1]) + pairwise_sum(stretch)
     return gradient

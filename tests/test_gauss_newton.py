@@ -8,6 +8,7 @@ import pytest
 import sagfree
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
+from sagfree.linalg.pairwise import pairwise_sum
 from sagfree.solvers import alm, gauss_newton
 
 
@@ -92,9 +93,9 @@ def test_the_compiled_clock_is_perf_counters():
 
 
 @pytest.mark.parametrize("size", [0, 1, 7, 8, 9, 127, 128, 129, 135, 256, 590, 1031, 4097, 70001])
-def test_the_merit_sums_as_numpy_does(size):
+def test_the_pairwise_sum_is_numpys(size):
     values = np.random.default_rng(size).standard_normal(size) * 10.0 ** np.random.default_rng(1).integers(-8, 8, size)
-    assert gauss_newton._pairwise_sum(values) == np.sum(values)
+    assert pairwise_sum(values) == np.sum(values)
 
 
 def test_an_unknown_preconditioner_is_refused_by_name():

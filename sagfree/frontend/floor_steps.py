@@ -24,6 +24,7 @@ from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
 from sagfree.linalg.eigen import block_eigenpair
+from sagfree.linalg.pairwise import pairwise_sum
 from sagfree.solvers.gauss_newton import at_rest_residual
 from sagfree.solvers.statics_start import applies, statics_indices, statics_optimum
 
@@ -45,14 +46,16 @@ def raised_floors(gradient, p, lower, upper, weights, stiffness, value, margin, 
         if stiffness[j]:
             largest = max(largest, gradient[j])
     room = np.zeros(p.size, dtype=np.bool_)
-    total = 0.0
+    terms = np.empty(p.size)
+    count = 0
     for j in range(p.size):
         room[j] = stiffness[j] and p[j] < upper[j] and gradient[j] > relevant * largest
         if room[j]:
-            total += gradient[j] ** 2 / (weights[j] + 1e-12)
-    if not room.any():
+            terms[count] = gradient[j] ** 2 / (weights[j] + 1e-12)
+            count += 1
+    if count == 0:
         return np.empty(0)
-    step = (overshoot * margin - value) / total
+    step = (overshoot * margin - value) / pairwise_sum(terms[:count])  # np.sum's bits
     floors = lower.copy()
     for j in range(p.size):
         if room[j]:
