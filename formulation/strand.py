@@ -1,6 +1,7 @@
 """The input strand: groomed polyline, material, frames, attachments and loads (DESIGN sections 3 and 10)."""
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 #: Root conditions: which leading DOFs are prescribed (DESIGN section 3).
@@ -157,11 +158,27 @@ def _check_thin(points: np.ndarray, radius: float) -> None:
 
 
 def radius_per_edge(points: np.ndarray, radius: float) -> tuple[int, float]:
-    """(shortest edge, radius over its length) of the polyline ``points`` (Strand.thickness)."""
-    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    edge = int(np.argmin(lengths))
+    """(shortest edge, radius over its length) of the polyline ``points`` (Strand.thickness); one
+    compiled pass (a batch checks every strand before it starts: numpy's five calls took 17 us per
+    strand, 31 ms of a 1900-strand groom's start)."""
+    edge, length = _shortest_edge(np.ascontiguousarray(points, dtype=float))
     with np.errstate(over="ignore", divide="ignore"):
-        return edge, float(radius / lengths[edge])
+        return edge, float(np.float64(radius) / length)
+
+
+@numba.njit(cache=True)
+def _shortest_edge(points):  # pragma: no cover - compiled
+    """(index, length) of the first shortest edge, as np.argmin of np.linalg.norm(np.diff(points),
+    axis=1) (the same sums; a NaN length is the minimum, as argmin takes it)."""
+    edge, shortest = 0, np.inf
+    for i in range(points.shape[0] - 1):
+        dx, dy, dz = points[i + 1, 0] - points[i, 0], points[i + 1, 1] - points[i, 1], points[i + 1, 2] - points[i, 2]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if np.isnan(length):
+            return i, length
+        if length < shortest:
+            edge, shortest = i, length
+    return edge, shortest
 
 
 class InvalidStrand:

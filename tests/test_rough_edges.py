@@ -1,6 +1,7 @@
 """The rough edges a new user hit on a fresh clone (issue 22), one test each: Ctrl-C, file
 permissions, a far-off point, command-line values, empty files, refused saves, bounds, cyHair
 thickness and material options, abandoned worker processes, geometry against parameters."""
+import gc
 import multiprocessing
 import os
 import signal
@@ -168,6 +169,27 @@ def test_a_batch_joins_its_worker_processes():
     "Exception ignored ... OSError: [Errno 9] Bad file descriptor" after `sagfree simulate`."""
     assert map_strands(abs, [(-k,) for k in range(8)], jobs=2) == list(range(8))
     assert multiprocessing.active_children() == []
+
+
+def _frozen_objects(_):
+    return gc.get_freeze_count()
+
+
+def test_a_batch_keeps_this_processs_heap_from_the_collector_and_leaves_it_as_it_was():
+    """While a batch runs, the objects this process held before are frozen out of the cyclic
+    garbage collector (its full collections scanned them all as the Results piled up); after it,
+    the collector is as it was, also when the caller had frozen objects itself."""
+    assert gc.get_freeze_count() == 0
+    assert all(count > 0 for count in map_strands(_frozen_objects, [(k,) for k in range(3)], jobs=1))
+    assert map_strands(abs, [(-k,) for k in range(8)], jobs=2) == list(range(8))
+    assert gc.get_freeze_count() == 0
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        assert map_strands(_frozen_objects, [(k,) for k in range(3)], jobs=1) == [frozen] * 3
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()
 
 
 def test_killed_workers_release_a_manager_thread_waiting_for_a_half_sent_result():

@@ -63,3 +63,23 @@ def test_a_batch_warns_once_naming_the_strands_thicker_than_an_edge():
     with pytest.warns(UserWarning, match=r"1 of 2 strands have a radius above an edge length \(strand 1 at edge"):
         results = sagfree.optimize([sagfree.scenes.horizontal(), thick], jobs=1)
     assert [r.status for r in results] == ["converged", "converged"]
+
+
+def test_the_compiled_thickness_is_numpys():
+    """radius_per_edge's compiled pass gives numpy's (argmin of the edge norms: the first shortest
+    edge, a NaN length taken as the minimum) bit for bit."""
+    from sagfree.formulation.strand import radius_per_edge
+    rng = np.random.default_rng(0)
+    cases = [rng.standard_normal((k, 3)) for k in (2, 3, 10, 100)]
+    tied = rng.standard_normal((10, 3))
+    tied[4], tied[7] = tied[3], tied[6]  # two zero-length edges: the first is named
+    holed = rng.standard_normal((10, 3))
+    holed[6, 1] = np.nan
+    for points in cases + [tied, holed]:
+        lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        edge = int(np.argmin(lengths))
+        with np.errstate(all="ignore"):
+            for radius in (1e-4, 5.0):
+                found = radius_per_edge(points, radius)
+                assert found[0] == edge
+                assert found[1] == radius / lengths[edge] or np.isnan(found[1]) and np.isnan(lengths[edge])
