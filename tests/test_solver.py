@@ -119,6 +119,51 @@ def test_result_summaries_and_repr():
     assert result.history[-1] <= 1e-8
 
 
+def test_result_measurements_are_their_numpy_forms():
+    """contract.result.measurements (one compiled pass) against their numpy formulas, bit for bit
+    but for the blocks' means (a running sum, not numpy's pairwise one), on element
+    and strand stiffness, a pinned tip and a strand on a body (supports in p), at solutions, p0,
+    perturbed points and a point with a NaN entry."""
+    from sagfree.contract.result import measurements
+    from sagfree.formulation import dofs
+    from sagfree.formulation.bodies import Sphere
+    from sagfree.formulation.parameters import REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
+    resting = sagfree.scenes.horizontal(n=20)
+    ball = Sphere(resting.points[12] - [0, 0, 0.2 + resting.radius], 0.2)
+    problems = [sagfree.Problem(strand) for strand in sagfree.scenes.groom(2, 40, seed=0)]
+    problems += [sagfree.Problem(sagfree.scenes.groom(1, 30, seed=1)[0], stiffness="strand"),
+                 sagfree.Problem(sagfree.scenes.horizontal(n=20, tip="pinned")), sagfree.Problem(resting, bodies=[ball])]
+    rng = np.random.default_rng(0)
+    for problem in problems:
+        layout, solution = problem.layout, sagfree.solve(problem).p
+        holed = solution.copy()
+        holed[3] = np.nan
+        moved = np.clip(solution * (1 + 0.1 * rng.standard_normal(solution.size)), layout.lower, layout.upper)
+        for p in (solution, layout.p0, moved, holed):
+            with np.errstate(invalid="ignore"):
+                found = measurements(problem, p)
+                forces = problem.forces(p)[dofs.position_index(problem.n_vertices)]
+                free = problem.free[dofs.position_index(problem.n_vertices)].all(axis=1)
+                expected = [float(np.abs(problem.residual(p)).max(initial=0.0)),
+                            float(np.linalg.norm(forces[free], axis=1).max(initial=0.0)), problem.objective(p)]
+            np.testing.assert_array_equal(found[:3], expected)
+            for summary, blocks in ((found[3], (*STIFFNESS_BLOCKS, STRAND_BLOCK)), (found[4], REST_BLOCKS)):
+                assert list(summary) == [block for block in blocks if block in layout.blocks]
+            for block, entries in found[3].items():  # means: a running sum, not numpy's pairwise one
+                ratio = p[layout.blocks[block]] / layout.p0[layout.blocks[block]]
+                np.testing.assert_array_equal([entries["max"], entries["stiffened"]],
+                                              [ratio.max(), np.mean(ratio > STIFFENED)])
+                np.testing.assert_allclose(entries["mean"], ratio.mean(), rtol=1e-14)
+            for block, entries in found[4].items():
+                index = layout.blocks[block]
+                change = np.abs(p[index] - layout.p0[index])
+                half = np.maximum(layout.upper[index] - layout.p0[index], layout.p0[index] - layout.lower[index])
+                with np.errstate(invalid="ignore"):
+                    np.testing.assert_array_equal([entries["max"], entries["box"]],
+                                                  [change.max(), (change / np.where(half > 0, half, 1)).max()])
+                np.testing.assert_allclose(entries["mean"], change.mean(), rtol=1e-14)
+
+
 @pytest.mark.parametrize("preconditioner", ["cholesky", "jacobi", "none"])
 def test_every_preconditioner_reaches_the_same_optimum(preconditioner):
     problem = sagfree.Problem(sagfree.scenes.helix(n=16), stiffness="strand")

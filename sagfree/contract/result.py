@@ -17,6 +17,7 @@ from sagfree.formulation.parameters import REST_BLOCKS, STIFFNESS_BLOCKS, STRAND
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import Equilibrium
 from sagfree.linalg import timing
+from sagfree.linalg.pairwise import pairwise_sum
 
 #: converged: |c|_inf <= tol and KKT distance <= kkt_tol; infeasible: no point of the box balances
 #: the load; max_iterations: stopped at a limit (max_iterations, max_seconds or a solver's own);
@@ -107,9 +108,53 @@ class Result:
                 f"  message: {self.message}")
 
 
-def max_vertex_force(problem: Problem, p: np.ndarray) -> float:
-    """Largest norm of the residual force on a free vertex position, N."""
-    return float(_largest_vertex_force(problem.forces(p), dofs.position_index(problem.n_vertices), problem.free))
+def measurements(problem: Problem, p: np.ndarray) -> tuple[float, float, float, dict, dict]:
+    """(|c|_inf, the largest residual force on a free vertex position (N), R(p), the stiffening
+    summary, the rest-change summary) of p, in one compiled pass over p and f(q*, p) (``_measured``,
+    each number as its numpy form gives it). Stiffening, per stiffness block: the largest and mean
+    multiplier over its specified value, and the share of its elements above STIFFENED. Rest change,
+    per rest block: the largest and mean absolute change from p0, and the largest change over the
+    box's half-width (the wider side)."""
+    layout = problem.layout
+    stiffness_names, stiffness_index, stiffness_offsets = layout.concatenated_blocks((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    rest_names, rest_index, rest_offsets = layout.concatenated_blocks(REST_BLOCKS)
+    residual_inf, max_force, objective, stiffening, rest = _measured(
+        p, problem.forces(p), problem.free_index, problem.row_scale, dofs.position_index(problem.n_vertices),
+        problem.free, layout.weights, layout.p0, layout.lower, layout.upper, stiffness_index, stiffness_offsets,
+        rest_index, rest_offsets, STIFFENED)
+    return (residual_inf, max_force, objective,
+            {name: {"max": row[0], "mean": row[1], "stiffened": row[2]}
+             for name, row in zip(stiffness_names, stiffening.tolist())},
+            {name: {"max": row[0], "mean": row[1], "box": row[3]} for name, row in zip(rest_names, rest.tolist())})
+
+
+@numba.njit(cache=True)
+def _measured(p, f, free_index, row_scale, positions, free, w, p0, lower, upper, stiffness_index, stiffness_offsets,
+              rest_index, rest_offsets, stiffened):  # pragma: no cover - compiled
+    """``measurements``' numbers: np.abs(c).max(initial=0.0) with c = f[free] / D (NaN kept), the
+    largest vertex force, 0.5 np.sum(w d d) (numpy's pairwise sum), and _block_statistics of
+    the multipliers over p0 and of |p - p0| with its share of the box's half-width."""
+    residual_inf = 0.0
+    for r in range(free_index.size):
+        value = abs(f[free_index[r]] / row_scale[free_index[r]])
+        if not value <= residual_inf:  # larger, or NaN: kept from then on
+            residual_inf = value if residual_inf == residual_inf else residual_inf
+    terms = np.empty(p.size)
+    for j in range(p.size):
+        d = p[j] - p0[j]
+        terms[j] = w[j] * d * d
+    ratio = np.empty(stiffness_index.size)
+    for k in range(stiffness_index.size):
+        ratio[k] = p[stiffness_index[k]] / p0[stiffness_index[k]]
+    change, share = np.empty(rest_index.size), np.empty(rest_index.size)
+    for k in range(rest_index.size):
+        j = rest_index[k]
+        change[k] = abs(p[j] - p0[j])
+        half_box = max(upper[j] - p0[j], p0[j] - lower[j])
+        share[k] = change[k] / (half_box if half_box > 0 else 1.0)
+    return (residual_inf, _largest_vertex_force(f, positions, free), 0.5 * pairwise_sum(terms),
+            _block_statistics(ratio, ratio, stiffness_offsets, stiffened),
+            _block_statistics(change, share, rest_offsets, np.inf))
 
 
 @numba.njit(cache=True)
@@ -124,27 +169,6 @@ def _largest_vertex_force(f, positions, free):  # pragma: no cover - compiled
             if not norm <= largest:  # larger, or NaN: kept from then on
                 largest = norm if largest == largest else largest
     return largest
-
-
-def stiffening_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
-    """Per stiffness block: the largest and mean multiplier over its specified value, and the share
-    of its elements above STIFFENED."""
-    names, index, offsets = problem.layout.concatenated_blocks((*STIFFNESS_BLOCKS, STRAND_BLOCK))
-    ratio = p[index] / problem.layout.p0[index]
-    statistics = _block_statistics(ratio, ratio, offsets, STIFFENED)
-    return {name: {"max": row[0], "mean": row[1], "stiffened": row[2]}
-            for name, row in zip(names, statistics.tolist())}
-
-
-def rest_change_summary(problem: Problem, p: np.ndarray) -> dict[str, dict[str, float]]:
-    """Per rest block: the largest and mean absolute change from p0, and the largest change over
-    the box's half-width (the wider side)."""
-    names, index, offsets = problem.layout.concatenated_blocks(REST_BLOCKS)
-    p0, lower, upper = problem.layout.p0[index], problem.layout.lower[index], problem.layout.upper[index]
-    change = np.abs(p[index] - p0)
-    half_box = np.maximum(upper - p0, p0 - lower)
-    statistics = _block_statistics(change, change / np.where(half_box > 0, half_box, 1.0), offsets, np.inf)
-    return {name: {"max": row[0], "mean": row[1], "box": row[3]} for name, row in zip(names, statistics.tolist())}
 
 
 @numba.njit(cache=True)
@@ -187,10 +211,9 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
         contacts = problem.contact_forces(p)
         load = problem.external_forces[dofs.position_index(problem.n_vertices)].sum(axis=0)
         support = float(-contacts.sum(axis=0) @ load / (load @ load)) if load @ load > 0 else 0.0
-        return Result(solver, p, status, message, dict(iterations),
-                      float(np.abs(problem.residual(p)).max(initial=0.0)), max_vertex_force(problem, p),
-                      problem.objective(p), stiffening_summary(problem, p), rest_change_summary(problem, p),
-                      time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
+        residual_inf, max_force, objective, stiffening, rest_change = measurements(problem, p)
+        return Result(solver, p, status, message, dict(iterations), residual_inf, max_force, objective,
+                      stiffening, rest_change, time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
                       float("nan") if rest is None else rest.relative_sag, contacts, support, float(setup_time))
 
 
