@@ -574,7 +574,7 @@ class Problem:
     def _band_plan(self):
         """(target, source, ones): how hessian_band scatters the stencil Hessians into the band
         (_band_scatter, shared by the strands of a size); made on first use."""
-        return _band_scatter([self.edge_dofs, self.vertex_dofs], self.q_star.size)
+        return _band_scatter(self.n_vertices)
 
     @functools.cached_property
     def _compiled_hessian(self):
@@ -603,11 +603,7 @@ class Problem:
         """Lumped inertia per DOF (4n-1): the vertex mass m_i (kg) on positions, the edge's polar
         moment rho pi r^4 l0_j / 2 (kg m^2) on th_j (what the simulation integrates). Computed once
         (every stability evaluation and simulation step reads it); do not modify."""
-        n = self.n_vertices
-        mass = np.empty(self.q_star.size)
-        mass[dofs.position_index(n)] = self.masses[:, None]
-        mass[dofs.theta_index(n)] = 0.5 * self.strand.density * np.pi * self.strand.radius**4 * self.edge_lengths
-        return mass
+        return _dof_masses(self.masses, 0.5 * self.strand.density * np.pi * self.strand.radius**4, self.edge_lengths)
 
     def stability(self, p, vector: bool = False, q=None, frames: Frames | None = None):
         """Smallest eigenvalue omega^2 (s^-2) of the free-DOF energy Hessian at q* (or at the state q,
@@ -650,12 +646,7 @@ class Problem:
         """(s, R, C) with s = M_F^-1/2 on the free DOFs and R[k, j] = s[j + k], C[k, j] = s[j] in the
         free band's storage (0 past the end of a diagonal): the band of M^-1/2 H_F M^-1/2 is
         band * R * C."""
-        scale = 1.0 / np.sqrt(self.dof_masses[self.free_index])
-        size = scale.size
-        row_scale, column_scale = np.zeros((2, HALF_BANDWIDTH + 1, size))
-        for k in range(min(HALF_BANDWIDTH + 1, size)):  # a 3-vertex strand has fewer free DOFs than diagonals
-            row_scale[k, : size - k], column_scale[k, : size - k] = scale[k:], scale[: size - k]
-        return scale, row_scale, column_scale
+        return _mass_scaling(self.dof_masses, self.free_index, HALF_BANDWIDTH + 1)
 
     @functools.cached_property
     def free_vertices(self) -> np.ndarray:
@@ -785,6 +776,32 @@ class Problem:
 
 
 @numba.njit(cache=True)
+def _dof_masses(masses, polar, edge_lengths):  # pragma: no cover - compiled
+    """Problem.dof_masses: m_i on vertex i's positions 4i..4i+2, polar l0_j on th_j (4j + 3)."""
+    mass = np.empty(4 * masses.size - 1)
+    for i in range(masses.size):
+        mass[4 * i], mass[4 * i + 1], mass[4 * i + 2] = masses[i], masses[i], masses[i]
+    for j in range(edge_lengths.size):
+        mass[4 * j + 3] = polar * edge_lengths[j]
+    return mass
+
+
+@numba.njit(cache=True)
+def _mass_scaling(masses, free_index, diagonals):  # pragma: no cover - compiled
+    """Problem._mass_scaling from the DOF masses: s = 1 / sqrt(m_F), R[k, j] = s[j + k], C[k, j] =
+    s[j] (0 past the end of a diagonal; a 3-vertex strand has fewer free DOFs than diagonals)."""
+    size = free_index.size
+    scale = np.empty(size)
+    for j in range(size):
+        scale[j] = 1.0 / np.sqrt(masses[free_index[j]])
+    row_scale, column_scale = np.zeros((diagonals, size)), np.zeros((diagonals, size))
+    for k in range(min(diagonals, size)):
+        for j in range(size - k):
+            row_scale[k, j], column_scale[k, j] = scale[j + k], scale[j]
+    return scale, row_scale, column_scale
+
+
+@numba.njit(cache=True)
 def _slot_pair_entries(edge_index, edge_coefficient, edge_blocks, vertex_index, vertex_coefficient,
                        vertex_blocks):  # pragma: no cover - compiled
     """(rows, columns, values) of -c_a c_b B[s, a, b] for every stencil s and pair of linked slots
@@ -897,17 +914,15 @@ def _free_gather(free_index: np.ndarray, size: int):
                  lambda: principal_band_gather(free_index, size, HALF_BANDWIDTH))
 
 
-#: _band_scatter results by (size, stencil DOF indices)
-_BAND_SCATTERS: dict = {}
-
-
-def _band_scatter(stencil_indices: list[np.ndarray], size: int):
-    """(target, source, ones) of jacobian.scatter_values from the stencil kinds' raveled Hessian
-    blocks, concatenated in order, to (HALF_BANDWIDTH + 1, size) band storage: the lower-triangle
-    entries, each kind's in C order, as the np.bincount of their values did (the same sums in the
-    same order; the band of a 100-vertex strand 158 -> 146 us); ~0.15 ms to build, cached."""
-    key = (size, *(index.shape for index in stencil_indices), *(index.tobytes() for index in stencil_indices))
-    return _memo(_BAND_SCATTERS, key, lambda: _build_band_scatter(stencil_indices, size))
+@functools.lru_cache(maxsize=16)
+def _band_scatter(n_vertices: int):
+    """(target, source, ones) of jacobian.scatter_values from the edge and vertex stencils' raveled
+    Hessian blocks (dofs.edge_stencil_index, vertex_stencil_index), concatenated in that order, to
+    (HALF_BANDWIDTH + 1, 4n - 1) band storage: the lower-triangle entries, each kind's in C order,
+    as the np.bincount of their values did (the same sums in the same order; the band of a
+    100-vertex strand 158 -> 146 us); ~0.15 ms to build, one per strand size."""
+    return _build_band_scatter([dofs.edge_stencil_index(n_vertices), dofs.vertex_stencil_index(n_vertices)],
+                               4 * n_vertices - 1)
 
 
 def _build_band_scatter(stencil_indices: list[np.ndarray], size: int):
