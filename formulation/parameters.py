@@ -183,6 +183,15 @@ class _LayoutStructure:
     concatenated: dict = field(default_factory=dict, compare=False)  # ParameterLayout.concatenated_blocks
     slot_coefficients: dict = field(default_factory=dict, compare=False)  # _slot_map's, by stencil kind
 
+    @functools.cached_property
+    def owners(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+        """ParameterLayout._owners, made once per structure (read-only)."""
+        owner, within = np.full(self.size, -1), np.zeros(self.size, dtype=int)
+        for number, ix in enumerate(self.blocks.values()):
+            owner[ix], within[ix] = number, np.arange(ix.size)
+        owner.flags.writeable = within.flags.writeable = False
+        return tuple(self.blocks), owner, within
+
 
 @functools.lru_cache(maxsize=16)
 def _layout_structure(n_vertices: int, active: tuple, strand_level: bool, couple_twist: bool, contacts: bytes,
@@ -482,10 +491,7 @@ class ParameterLayout:
             return within
         return within // _VERTEX_BLOCKS[block] + 1
 
-    @functools.cached_property
-    def _owners(self) -> tuple[list[str], np.ndarray, np.ndarray]:
+    @property
+    def _owners(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
         """(block names, each entry's block number (-1: none), its place in its block) for ``locate``."""
-        owner, within = np.full(self.size, -1), np.zeros(self.size, dtype=int)
-        for number, ix in enumerate(self.blocks.values()):
-            owner[ix], within[ix] = number, np.arange(ix.size)
-        return list(self.blocks), owner, within
+        return self._structure.owners

@@ -226,8 +226,12 @@ def _floors_note(problem: Problem, stabilized: Problem, rounds: int, before: flo
 
 
 def _ranges(numbers: np.ndarray) -> str:
-    """'1-4, 7' from the element numbers [1, 2, 3, 4, 7] (any order, repeats ignored)."""
-    numbers = np.unique(numbers)
-    breaks = np.flatnonzero(np.diff(numbers) != 1)
-    starts, ends = numbers[np.r_[0, breaks + 1]], numbers[np.r_[breaks, numbers.size - 1]]
-    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in zip(starts.tolist(), ends.tolist()))
+    """'1-4, 7' from the element numbers [1, 2, 3, 4, 7] (any order, repeats ignored; a few dozen
+    per stabilized strand: plain Python beats numpy's calls)."""
+    runs: list[list[int]] = []
+    for number in sorted(set(numbers.tolist())):
+        if runs and number == runs[-1][1] + 1:
+            runs[-1][1] = number
+        else:
+            runs.append([number, number])
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs)
