@@ -150,6 +150,16 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
     return current, dataclasses.replace(result, iterations=counts), rounds, verdict
 
 
+def warm_floor_steps(problem: Problem) -> None:
+    """One round of floors from asc's optimum of ``problem``, whatever its stability, its floors
+    thrown away: the warm-up's way (frontend.warm) to compile or load the round's kernels in this
+    process before anything is timed."""
+    result = solve_alm(problem)
+    if result.status == "converged":
+        value, mode = problem.stability(result.p, vector=True)
+        _next_floors(problem, result.p, value, mode, problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK)))
+
+
 def _next_floors(problem: Problem, p: np.ndarray, value: float, mode: np.ndarray, stiffness: np.ndarray):
     """The floors of a round (module docstring, item 2) from p, the solution of ``problem`` with
     smallest eigenvalue ``value`` and mode ``mode``: the first-order step, checked where it lands;

@@ -12,7 +12,8 @@ bodies' tangent planes): with bodies, the warm-up strand rests on the first of t
 ``warm_paths`` solve the strand again along paths its own solve skips (asc's Gauss-Newton loop: the
 warm-up strand, held by its root alone, starts at its optimum, and the first strand that needed a
 Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
-prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP.
+prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP,
+the stabilization's compiled round (the warm-up strand is stable).
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.strand import Strand
 from sagfree.solvers import interior_point
 
-from .stabilize import solve_stabilized
+from .stabilize import solve_stabilized, warm_floor_steps
 from .table import solver_entry
 
 #: (solver, model options) already warm in this process
@@ -148,11 +149,15 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
 
 
 def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict) -> None:
-    """The warm-up strand solved, then its constraints' curvature evaluated once: asc's Newton-SQP
-    (held tips, long strands) builds those stencils on first use, which put 0.12 s of a cold run's
-    compile into the first such strand's Result.time."""
+    """The warm-up strand solved, then its constraints' curvature evaluated once (asc's Newton-SQP,
+    for held tips and long strands, builds those stencils on first use, which put 0.12 s of a cold
+    run's compile into the first such strand's Result.time) and a stabilization round taken from
+    its optimum (the warm-up strand is stable, and the round's compiled kernels, floor_steps, took
+    ~9 s of compiling into the first stabilized strand of each worker of a cold batch)."""
     problem = _warm_strand(problem_options)
     options = {**_structure_options(solver_options), **entry.warm_options}
     for path in ({}, *entry.warm_paths):
         solve_stabilized(entry.function, problem, {**options, **path})
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
+    if problem.stabilize:
+        warm_floor_steps(problem)
