@@ -28,6 +28,8 @@ from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
+from sagfree.linalg import timing
+from sagfree.linalg.eigen import block_eigenpair
 from sagfree.linalg.pairwise import pairwise_sum
 
 from .jacobian import scatter_values
@@ -190,6 +192,25 @@ def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, r
     k = _raveled_blocks(by_edge, edge_width, entries, 0)
     _raveled_blocks(by_vertex, vertex_width, entries, k)
     return scatter_values(target, source, ones, entries, rows * columns).reshape(rows, columns)
+
+
+@numba.njit(cache=True)
+def stability(p, hessian_args, eigen_args, scale, free_index, clock, clock_id, seconds):  # pragma: no cover
+    """Problem.stability(p, vector=True) at q* off p0 in compiled code, from Problem.stability_kernels:
+    (lambda, v) of the stressed Hessian band (``hessian_band``) and its mass-scaled free block's
+    smallest eigenpair (linalg.eigen.block_eigenpair), v[free] = mode * s. seconds[0] and [1]
+    accumulate the band's and the eigenpair's seconds on the clock (address, id)."""
+    buffer = np.zeros(2, dtype=np.int64)
+    start = timing.clock_seconds(clock, clock_id, buffer)
+    band = hessian_band(p, *hessian_args)
+    now = timing.clock_seconds(clock, clock_id, buffer)
+    value, free_mode = block_eigenpair(band, *eigen_args)
+    mode = np.zeros(hessian_args[-1])
+    for k in range(free_index.size):
+        mode[free_index[k]] = free_mode[k] * scale[k]
+    seconds[0] += now - start
+    seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+    return value, mode
 
 
 @numba.njit(cache=True)

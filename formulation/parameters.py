@@ -185,7 +185,8 @@ class _LayoutStructure:
 
     @functools.cached_property
     def owners(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
-        """ParameterLayout._owners, made once per structure (read-only)."""
+        """(block names, each entry's block number (-1: none), its place in its block): what
+        ParameterLayout.locate and element_numbers read, made once per structure (read-only)."""
         owner, within = np.full(self.size, -1), np.zeros(self.size, dtype=int)
         for number, ix in enumerate(self.blocks.values()):
             owner[ix], within[ix] = number, np.arange(ix.size)
@@ -459,7 +460,7 @@ class ParameterLayout:
 
     def locate(self, index: int) -> tuple[str, str]:
         """(block, element) of entry ``index`` of p, e.g. ("bend_stiffness", "vertex 3")."""
-        names, owner, within = self._owners
+        names, owner, within = self._structure.owners
         if not 0 <= index < self.size or owner[index] < 0:
             raise IndexError(f"p has no entry {index}")
         block = names[owner[index]]
@@ -472,7 +473,7 @@ class ParameterLayout:
         """The entries ``indices`` of p by block (in BLOCKS order), each as the number of the edge or
         vertex that ``locate`` names (0 for the strand multiplier): ``locate`` for many entries at
         once, without a Python step per entry (a stabilized strand's note names dozens of floors)."""
-        names, owner, within = self._owners
+        names, owner, within = self._structure.owners
         indices = np.asarray(indices, dtype=int).reshape(-1)
         bad = (indices < 0) | (indices >= self.size)
         bad[~bad] = owner[indices[~bad]] < 0
@@ -490,8 +491,3 @@ class ParameterLayout:
         if block in _EDGE_BLOCKS:
             return within
         return within // _VERTEX_BLOCKS[block] + 1
-
-    @property
-    def _owners(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
-        """(block names, each entry's block number (-1: none), its place in its block) for ``locate``."""
-        return self._structure.owners

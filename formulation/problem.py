@@ -447,9 +447,10 @@ class Problem:
     @functools.cached_property
     def stability_kernels(self):
         """What a compiled call needs to evaluate ``stability(p, vector=True)`` at q* off p0 without
-        Python (solvers.confirmed_start), or None where the stencils are not compiled or bodies may
-        support the strand: (at_rest.hessian_band's arguments after p, linalg.eigen.block_eigenpair's
-        after the band, the mass scale s and the free DOFs' indices: v[free] = mode * s)."""
+        Python (at_rest.stability, from solvers.confirmed_start and frontend.floor_steps), or None
+        where the stencils are not compiled or bodies may support the strand: (at_rest.hessian_band's
+        arguments after p, linalg.eigen.block_eigenpair's after the band, the mass scale s and the
+        free DOFs' indices: v[free] = mode * s)."""
         if self._compiled_hessian is None or self.contacts.count:
             return None
         scale, row_scale, column_scale = self._mass_scaling

@@ -28,7 +28,6 @@ from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.compressed import csc_column_norms
-from sagfree.linalg.eigen import block_eigenpair
 from sagfree.linalg.saddle import band_order
 from sagfree.linalg.square import square_solution
 
@@ -147,16 +146,12 @@ def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indi
     seconds[0] += now - start
     distance = band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, values, position, w, w * (p - p0), c, p, lower,
                                  upper, near)
-    start = timing.clock_seconds(clock, clock_id, buffer)
-    seconds[1] += start - now
+    seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
     measure, tol, kkt_tol, hessian_args, eigen_args, scale, free_index = stability
     eigenvalue, mode = np.nan, empty
     # Problem.stability at q* (its hessian_band's compiled path, which p0 itself does not take)
     if measure and largest_magnitude(c) <= tol and distance <= kkt_tol and not np.array_equal(p, p0):
-        band = at_rest.hessian_band(p, *hessian_args)
-        eigenvalue, free_mode = block_eigenpair(band, *eigen_args)
-        mode = np.zeros(hessian_args[-1])
-        for k in range(free_index.size):
-            mode[free_index[k]] = free_mode[k] * scale[k]
-        seconds[2] += timing.clock_seconds(clock, clock_id, buffer) - start
+        measured = np.zeros(2)
+        eigenvalue, mode = at_rest.stability(p, hessian_args, eigen_args, scale, free_index, clock, clock_id, measured)
+        seconds[2] += measured[0] + measured[1]
     return _CONFIRMED, change, p, f0, values0, f, values, distance, eigenvalue, mode

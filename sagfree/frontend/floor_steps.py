@@ -23,7 +23,6 @@ import numpy as np
 from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
-from sagfree.linalg.eigen import block_eigenpair
 from sagfree.linalg.pairwise import pairwise_sum
 from sagfree.solvers.gauss_newton import at_rest_residual
 from sagfree.solvers.statics_start import applies, statics_indices, statics_optimum
@@ -116,17 +115,12 @@ def _checked_floors(p, value, mode, lower, upper, weights, stiffness, margin, ov
             return _NOT_APPLICABLE, empty, empty, np.nan, empty
         start = timing.clock_seconds(clock, clock_id, buffer)
         c, _ = at_rest_residual(landing, forces_args, free, row_scale)
+        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - start
         for r in range(c.size):
             if not abs(c[r]) <= tol:  # stabilize._landing restiffens instead
                 return _NOT_APPLICABLE, empty, empty, np.nan, empty
-        band = at_rest.hessian_band(landing, *hessian_args)
-        now = timing.clock_seconds(clock, clock_id, buffer)
-        seconds[0] += now - start
-        landing_value, free_mode = block_eigenpair(band, *eigen_args)
-        seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
-        landing_mode = np.zeros(hessian_args[-1])
-        for k in range(free_index.size):
-            landing_mode[free_index[k]] = free_mode[k] * scale[k]
+        landing_value, landing_mode = at_rest.stability(landing, hessian_args, eigen_args, scale, free_index, clock,
+                                                        clock_id, seconds)
         if landing_value >= margin:
             break
         gradient = at_rest.stiffening_gradient(landing_mode, landing, *stiffening_args)
