@@ -13,7 +13,9 @@ bodies' tangent planes): with bodies, the warm-up strand rests on the first of t
 warm-up strand, held by its root alone, starts at its optimum, and the first strand that needed a
 Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
 prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP,
-the stabilization's compiled round (the warm-up strand is stable).
+the stabilization's compiled round (the warm-up strand is stable). On a machine whose caches do not
+hold them yet, the first warm-up of each solver runs once in a child interpreter first (priming), so
+that the process that solves, and the workers it forks, load the kernels instead of carrying a compile.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.strand import Strand
 from sagfree.solvers import interior_point
 
+from .priming import primed_in_child
 from .stabilize import solve_stabilized, warm_floor_steps
 from .table import solver_entry
 
@@ -141,6 +144,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     if key in _WARM:
         return 0.0
     start = time.perf_counter()
+    primed_in_child(key, solver, solver_options, problem_options)  # a first compile: in a child (priming)
     _WARM.add(key)
     _quietly(interior_point.compile_kernels)
     entry = solver_entry(solver)

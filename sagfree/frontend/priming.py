@@ -1,0 +1,105 @@
+"""The first compile of a machine runs in a child process, so that no solving process carries it.
+
+numba compiles sagfree's kernels on the first run of a machine (or after an edit of the package) and
+keeps what LLVM needed for it in the compiling process: a process whose warm-up compiled them held
+756 MB resident, one whose warm-up loaded them from the cache 259 MB. A batch forks its workers from
+that process, and each worker's resident set counts the parent's pages again: the 10K-strand groom
+peaked at 1131 MB on a cold cache against 946 MB on a warm one (the goal is 1 GB). So before a
+process's first warm-up of a solver, ``primed_in_child`` runs that warm-up in a fresh interpreter,
+which compiles and stores every kernel and then exits, and the process itself loads them from the
+cache. What tells that this machine's caches already hold them is a stamp file under
+``$SAGFREE_CACHE/primed``, named by a digest of what the cached code depends on (``code_digest``: the
+package's sources, numba, Python, the host CPU and the numba cache directory) and of the warm-up's
+solver and model options: a new digest (an upgrade, an edit) primes again, once. A stamp whose
+numba cache was deleted since only costs the old behaviour (the process compiles in place). A child
+that fails leaves no stamp and costs nothing else: the process warms up in place, as before.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import pickle
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import numba
+
+from sagfree.formulation.compiled import cache_dir
+
+#: set in the child's environment, so that its own warm-up compiles in place instead of priming again
+CHILD = "SAGFREE_PRIMING_CHILD"
+#: the package's source directories whose modules hold or feed compiled kernels
+_SOURCE_PACKAGES = ("sagfree", "sagfree.formulation", "sagfree.solvers", "sagfree.baselines",
+                    "sagfree.contract", "sagfree.frontend", "sagfree.linalg", "sagfree.scenes")
+#: the child takes this process's import path, then warms up (its arguments pickled on stdin)
+_CHILD_CODE = ("import pickle, sys; path, arguments = pickle.loads(sys.stdin.buffer.read()); sys.path[:] = path; "
+               "from sagfree.frontend.warm import warm_up; warm_up(*arguments)")
+
+
+def primed_in_child(key: tuple, solver: str, solver_options: dict | None, problem_options: dict | None) -> bool:
+    """Run ``warm_up(solver, solver_options, problem_options)`` in a child interpreter unless the
+    stamp of ``key`` (warm's options key) says this machine has done so for this code; returns
+    whether a child ran and succeeded. Never raises."""
+    if os.environ.get(CHILD):
+        return False
+    try:
+        stamp = stamp_path(key)
+        if stamp.exists():
+            return False
+        arguments = pickle.dumps((sys.path, (solver, solver_options, problem_options)))
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+    except Exception:  # noqa: BLE001 - an unpicklable body, an unwritable cache: warm up in place
+        return False
+    # in the stamp's folder, with this process's import path: from a checkout's root, `python -c`
+    # would put the root first and import its sagfree/ folder (the source tree, not the install)
+    done = subprocess.run([sys.executable, "-c", _CHILD_CODE], input=arguments, env={**os.environ, CHILD: "1"},
+                          cwd=stamp.parent, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+    if done.returncode != 0:
+        return False
+    try:
+        stamp.write_text(f"{solver} {key!r}\n")
+    except OSError:
+        pass
+    return True
+
+
+def stamp_path(key: tuple) -> Path:
+    """The stamp file of the warm-up ``key`` for this code on this machine."""
+    digest = hashlib.sha256(code_digest().encode())
+    digest.update(repr(key).encode())
+    return cache_dir() / "primed" / f"{digest.hexdigest()[:32]}.stamp"
+
+
+def code_digest() -> str:
+    """SHA-256 over the contents of the package's source files (the directories of
+    ``_SOURCE_PACKAGES``, read from disk, so the digest does not depend on what is imported), the
+    versions of numba and Python, the host CPU and ``NUMBA_CACHE_DIR``: what makes numba's cache
+    entries valid (kernel_cache stamps each kernel by the contents of the modules it imports)."""
+    digest = hashlib.sha256()
+    for part in (numba.__version__, sys.version, platform.machine(), _host_cpu(),
+                 os.environ.get("NUMBA_CACHE_DIR", "")):
+        digest.update(part.encode() + b"\0")
+    for path in _source_files():
+        digest.update(path.name.encode() + b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def _source_files() -> list[Path]:
+    files = set()
+    for package in _SOURCE_PACKAGES:
+        spec = importlib.util.find_spec(package)
+        for directory in (spec.submodule_search_locations or []) if spec else []:
+            files.update(Path(directory).resolve().glob("*.py"))
+    return sorted(files)
+
+
+def _host_cpu() -> str:
+    try:
+        from llvmlite import binding
+        return binding.get_host_cpu_name() + binding.get_host_cpu_features().flatten()
+    except Exception:  # noqa: BLE001 - an llvmlite without them: the machine name must do
+        return ""

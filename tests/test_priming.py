@@ -1,0 +1,57 @@
+"""A machine's first compile runs in a child process, once per code and options (frontend.priming)."""
+import pytest
+
+from sagfree.frontend import priming, warm
+
+
+@pytest.fixture
+def stamps(tmp_path, monkeypatch):
+    """Stamps in a folder of their own (the child still uses this machine's model and numba caches)."""
+    monkeypatch.setattr(priming, "cache_dir", lambda: tmp_path)
+    return tmp_path
+
+
+def _no_child(*args, **kwargs):
+    raise AssertionError("a child process was started")
+
+
+def test_a_missing_stamp_primes_once_in_a_child(stamps, monkeypatch):
+    key = warm._key("naive", {})
+    assert priming.primed_in_child(key, "naive", None, {})
+    assert priming.stamp_path(key).exists()
+    monkeypatch.setattr(priming.subprocess, "run", _no_child)
+    assert not priming.primed_in_child(key, "naive", None, {})
+    other = warm._key("naive", {"curvature": "2d"})  # other model options: their own stamp
+    assert priming.stamp_path(other) != priming.stamp_path(key)
+
+
+def test_a_failed_child_leaves_no_stamp(stamps):
+    key = ("no-such-solver",)
+    assert not priming.primed_in_child(key, "no-such-solver", None, {})  # the child's warm_up raises
+    assert not priming.stamp_path(key).exists()
+
+
+def test_the_child_itself_does_not_prime(stamps, monkeypatch):
+    monkeypatch.setenv(priming.CHILD, "1")
+    monkeypatch.setattr(priming.subprocess, "run", _no_child)
+    assert not priming.primed_in_child(warm._key("naive", {}), "naive", None, {})
+
+
+def test_the_digest_follows_sources_and_numba_cache(tmp_path, monkeypatch):
+    source = tmp_path / "kernels.py"
+    source.write_text("x = 1\n")
+    monkeypatch.setattr(priming, "_source_files", lambda: [source])
+    before = priming.code_digest()
+    assert priming.code_digest() == before
+    source.write_text("x = 2\n")
+    edited = priming.code_digest()
+    assert edited != before
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert priming.code_digest() != edited
+
+
+def test_the_digest_reads_every_package_folder():
+    names = {path.parent.name + "/" + path.name for path in priming._source_files()}
+    for expected in ("solvers/gauss_newton.py", "formulation/at_rest.py", "linalg/band.py",
+                     "frontend/floor_steps.py", "sagfree/kernel_cache.py"):
+        assert any(name.endswith(expected) for name in names), expected
