@@ -97,11 +97,14 @@ def _chain_rule(kinematics_jacobian, s, by_kinematics, first, column):  # pragma
 
 @numba.njit(cache=True)
 def forces(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry, kinematics_jacobian,
-           edge_dofs, vertex_dofs, external, edge_gradient, vertex_gradient):  # pragma: no cover - compiled
-    """f(q*, p) without the bodies' supports. edge_slots / vertex_slots: a SlotMap's (constant,
+           edge_dofs, vertex_dofs, external, edge_gradient, vertex_gradient, contact_index, contact_directions,
+           contact_rows, contact_scale):  # pragma: no cover - compiled
+    """f(q*, p), the bodies' supports included. edge_slots / vertex_slots: a SlotMap's (constant,
     linked, factor, source); kinematics_jacobian: dk/dy per vertex stencil (S, 5, 11); edge_gradient
     / vertex_gradient: the addresses of the drivers of the edge gradient and of the vertex kinematics
-    gradient (compiled.BatchFunction.address)."""
+    gradient (compiled.BatchFunction.address); contact k (none: empty arrays) pushes its vertex's
+    position DOFs contact_rows[k] with D_k sum_j g_kj d_kj (Problem.contact_forces), g_kj =
+    p[contact_index[k, j]], d = contact_directions, D = contact_scale."""
     edge_physical, vertex_physical = _physical(p, edge_slots, vertex_slots)
     edges, edge_width = edge_q.shape
     vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
@@ -122,6 +125,12 @@ def forces(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, verte
     out = np.empty(size)
     for j in range(size):
         out[j] = external[j] - (edge_sum[j] + vertex_sum[j])
+    for k in range(contact_index.shape[0]):
+        for d in range(3):
+            push = 0.0
+            for j in range(contact_index.shape[1]):
+                push += p[contact_index[k, j]] * contact_directions[k, j, d]
+            out[contact_rows[k, d]] += push * contact_scale[k]
     return out
 
 

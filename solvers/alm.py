@@ -23,7 +23,7 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     (on 25-vertex groom strands the correction took the Gauss-Newton steps from 6.2 to 3.9 per
     strand, to the same optima). The whole inner solve is
     one compiled call where the model is compiled (solvers.gauss_newton); _inner_solve_python is
-    the same loop step for step, for the rest (no C compiler, strands on bodies).
+    the same loop step for step, for the rest (no C compiler).
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
     stiffened where it leaves the boxes (linear_start), with least-squares multipliers. For a strand
     held by its root alone that change is the only balancing one, and each element's multiplier is

@@ -9,7 +9,7 @@ second-order correction (``corrected_trial``, which the Python loop calls too), 
 trial point, evaluated by the same compiled kernels as Problem.residual and Problem.strand_jacobian
 (formulation.at_rest, numba calling the CasADi stencils at their addresses). The
 Python loop in alm (``_inner_solve_python``) does the same in the same order, and stays for
-problems whose model the kernels cannot evaluate (no C compiler, bodies): the two give the same
+problems whose model the kernels cannot evaluate (no C compiler): the two give the same
 p, bit for bit (the merit's sums are numpy's pairwise sums, ``pairwise_sum``, and the dot
 products the same BLAS ddot), which tests/test_gauss_newton.py checks.
 
@@ -63,7 +63,7 @@ _QP_COUNTS = (mprgp.CG, mprgp.EXPANSION, mprgp.PROPORTIONING, mprgp.ACTIVE_SET, 
 
 
 def available(problem: Problem) -> bool:
-    """True where ``inner_solve`` can run on ``problem`` (compiled stencils, no bodies, a clock)."""
+    """True where ``inner_solve`` can run on ``problem`` (compiled stencils, a clock)."""
     return timing.CLOCK is not None and problem.at_rest_kernels is not None
 
 

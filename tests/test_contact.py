@@ -143,6 +143,33 @@ def test_stability_on_a_body_matches_a_dense_constrained_eigensolve(resting):
     assert result.stable and result.min_eigenvalue >= problem.stability_margin
 
 
+def _sparse_stability(problem, p):
+    """stability(p, vector=True) on the bodies by the sparse path (the one without compiled stencils)."""
+    twin = problem.with_options()
+    twin.__dict__["_compiled_hessian"] = None
+    supports = p[twin.blocks[CONTACT_BLOCK]].reshape(twin.contacts.count, -1)
+    return twin._stability_on_bodies(p, np.flatnonzero(np.any(supports > 0, axis=1)), True)
+
+
+@pytest.mark.parametrize("case", ["head", "sliding", "sticking"])
+def test_compiled_stability_on_bodies_is_the_sparse_path(case, tilted):
+    """The band of the Hessian on the tangent planes, projected and solved in one compiled call, gives
+    the sparse matrices' eigenpair: a strand lying on the head (many resting vertices), the tilted
+    ball frictionless (its vertex slides: -F K on its block) and with friction (it sticks)."""
+    if case == "head":
+        problem = sagfree.Problem(head_groom(1, 60, seed=4)[0], bodies=[HEAD], stabilize=False)
+    else:
+        strand, ball = tilted
+        problem = sagfree.Problem(strand, bodies=[ball], friction=0.5 if case == "sticking" else 0.0,
+                                  stabilize=False)
+    p = sagfree.solve(problem).p
+    value, mode = problem.stability(p, vector=True)
+    expected, expected_mode = _sparse_stability(problem, p)
+    assert problem._compiled_hessian is not None and value == pytest.approx(expected, rel=1e-10)
+    assert abs(mode @ (problem.dof_masses * expected_mode)) == pytest.approx(1.0, abs=1e-8)
+    assert np.all(mode[problem.strand.prescribed_vertices * 4] == 0)
+
+
 def test_resting_strand_stays_and_holds_after_a_push_in_the_simulation(resting):
     problem, result = resting
     rest = equilibrium(problem, result.p)

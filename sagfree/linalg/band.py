@@ -308,3 +308,44 @@ def add_vertex_blocks(band: np.ndarray, blocks: np.ndarray) -> None:
     for k in range(3):
         for j in range(3 - k):
             band[k, 4 * np.arange(len(blocks)) + j] += blocks[:, j + k, j]
+
+
+@numba.njit(cache=True)
+def projected_band(band, support, values):  # pragma: no cover - compiled
+    """Lower band of B^T H B for a symmetric H in lower band storage (band[k, j] = H[j + k, j]) and a
+    basis B whose column a has the entries values[a, t] in the rows support[a, t] (t < 3; -1: none),
+    its columns ordered along H's rows (each column's rows at or after the previous column's), so
+    that B^T H B is banded too: its half bandwidth is the widest reach of a column to a later one
+    whose rows come within H's. Entry by entry: the sum over both columns' rows of
+    B[i, a] H[i, j] B[j, b] (Problem's stability on bodies: the Hessian on the tangent planes)."""
+    reach = band.shape[0] - 1
+    m = support.shape[0]
+    first, last = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    for a in range(m):
+        first[a], last[a] = support[a, 0], support[a, 0]
+        for t in range(1, 3):
+            if support[a, t] >= 0:
+                first[a], last[a] = min(first[a], support[a, t]), max(last[a], support[a, t])
+    width = 0
+    for a in range(m):
+        b = a + 1
+        while b < m and first[b] - last[a] <= reach:
+            b += 1
+        width = max(width, b - 1 - a)
+    out = np.zeros((width + 1, m))
+    for a in range(m):
+        for b in range(a, min(m, a + width + 1)):
+            total = 0.0
+            for s in range(3):
+                i = support[a, s]
+                if i < 0:
+                    continue
+                for t in range(3):
+                    j = support[b, t]
+                    if j < 0:
+                        continue
+                    low, high = min(i, j), max(i, j)
+                    if high - low <= reach:
+                        total += values[a, s] * band[high - low, low] * values[b, t]
+            out[b - a, a] = total
+    return out

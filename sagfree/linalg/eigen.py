@@ -21,6 +21,7 @@ import functools
 import numba
 import numpy as np
 
+from .band import projected_band
 from .cholesky import factor_active, plain_solve
 from .timing import LINEAR_ALGEBRA, timed
 
@@ -65,6 +66,43 @@ def block_eigenpair(band, target, source, size, row_scale, column_scale, v0):  #
     for k in range(target.size):
         block[target[k]] = flat[source[k]]
     return _eigenpair(block.reshape(rows, size) * row_scale * column_scale, v0)
+
+
+@timed(LINEAR_ALGEBRA)
+def projected_eigenpair(band: np.ndarray, support: np.ndarray, values: np.ndarray,
+                        masses: np.ndarray) -> tuple[float, np.ndarray]:
+    """(lambda, v) of the smallest eigenpair of B^T H B u = lambda B^T M B u, H the symmetric matrix
+    of ``band`` (lower storage), M = diag(``masses``) and B the basis of ``projected_band`` (support,
+    values: columns along H's rows), whose B^T M B must be diagonal (orthonormal tangents of
+    isotropic vertex masses); v = B u with u^T B^T M B u = 1, on all of H's rows. One compiled call
+    (Problem's stability on bodies)."""
+    return _projected_eigenpair(np.ascontiguousarray(band, dtype=float), np.ascontiguousarray(support, dtype=np.int64),
+                                np.ascontiguousarray(values, dtype=float), np.ascontiguousarray(masses, dtype=float),
+                                start_vector(support.shape[0]))
+
+
+@numba.njit(cache=True)
+def _projected_eigenpair(band, support, values, masses, v0):  # pragma: no cover - compiled
+    """``projected_eigenpair`` from the start vector v0 (``start_vector(m)``)."""
+    m = support.shape[0]
+    scale = np.empty(m)
+    for a in range(m):  # the diagonal of B^T M B, as M^-1/2 on the columns
+        mass = 0.0
+        for t in range(3):
+            if support[a, t] >= 0:
+                mass += values[a, t] * masses[support[a, t]] * values[a, t]
+        scale[a] = 1.0 / np.sqrt(mass)
+    reduced = projected_band(band, support, values)
+    for k in range(reduced.shape[0]):
+        for a in range(m - k):
+            reduced[k, a] = scale[a + k] * reduced[k, a] * scale[a]
+    value, mode = _eigenpair(reduced, v0)
+    v = np.zeros(band.shape[1])
+    for a in range(m):
+        for t in range(3):
+            if support[a, t] >= 0:
+                v[support[a, t]] += values[a, t] * (mode[a] * scale[a])
+    return value, v
 
 
 @numba.njit(cache=True)
