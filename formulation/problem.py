@@ -442,9 +442,9 @@ class Problem:
     def at_rest_kernels(self):
         """What a compiled loop needs to evaluate c(p) and dc/dp at q* without Python (asc's
         Gauss-Newton loop, solvers.gauss_newton), or None where the stencils are not compiled: a
-        tuple (forces arguments
-        after p, Jacobian arguments after p, free index, free rows' scales, (J's CSC indptr and
-        indices, its CSR indptr, indices and value order)). c = at_rest.forces(p, *forces_args)[free]
+        tuple (forces arguments after p, the bodies' supports among them, Jacobian arguments after
+        p, free index, free rows' scales, (J's CSC indptr and indices, its CSR indptr, indices and
+        value order)). c = at_rest.forces(p, *forces_args)[free]
         / scales and the CSC values of dc/dp at_rest.jacobian_values(p, *jacobian_args) are what
         ``residual`` and ``strand_jacobian`` give."""
         compiled = self._compiled_at_rest

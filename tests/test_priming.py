@@ -55,3 +55,18 @@ def test_the_digest_reads_every_package_folder():
     for expected in ("solvers/gauss_newton.py", "formulation/at_rest.py", "linalg/band.py",
                      "frontend/floor_steps.py", "sagfree/kernel_cache.py"):
         assert any(name.endswith(expected) for name in names), expected
+
+
+def test_a_process_first_warm_up_primes_before_it_warms_in_place(stamps, monkeypatch):
+    """warm_up asks for the child once per options key, before its own solve (which then loads)."""
+    calls = []
+
+    def child(command, **kwargs):
+        calls.append(kwargs["env"].get(priming.CHILD))
+        return priming.subprocess.CompletedProcess(command, 0)
+
+    monkeypatch.setattr(priming.subprocess, "run", child)
+    monkeypatch.setattr(warm, "_WARM", set())
+    assert warm.warm_up("naive") > 0 and calls == ["1"]
+    assert priming.stamp_path(warm._key("naive", None)).exists()
+    assert warm.warm_up("naive") == 0.0 and calls == ["1"]

@@ -3,8 +3,8 @@
 numba compiles sagfree's kernels on the first run of a machine (or after an edit of the package) and
 keeps what LLVM needed for it in the compiling process: a process whose warm-up compiled them held
 756 MB resident, one whose warm-up loaded them from the cache 259 MB. A batch forks its workers from
-that process, and each worker's resident set counts the parent's pages again: the 10K-strand groom
-peaked at 1131 MB on a cold cache against 946 MB on a warm one (the goal is 1 GB). So before a
+that process, and each worker's resident set counts the parent's pages again, so a first run broke
+the 1 GB goal of a 10K-strand groom that later runs met (benchmarks/RESULTS.md). So before a
 process's first warm-up of a solver, ``primed_in_child`` runs that warm-up in a fresh interpreter,
 which compiles and stores every kernel and then exits, and the process itself loads them from the
 cache. What tells that this machine's caches already hold them is a stamp file under
