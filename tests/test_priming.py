@@ -46,6 +46,12 @@ def test_the_digest_follows_sources_and_numba_cache(tmp_path, monkeypatch):
     source.write_text("x = 2\n")
     edited = priming.code_digest()
     assert edited != before
+    moved = tmp_path / "elsewhere"  # another install of the same code: its own numba cache
+    moved.mkdir()
+    (moved / "kernels.py").write_text("x = 2\n")
+    monkeypatch.setattr(priming, "_source_files", lambda: [moved / "kernels.py"])
+    assert priming.code_digest() != edited
+    monkeypatch.setattr(priming, "_source_files", lambda: [source])
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     assert priming.code_digest() != edited
 

@@ -74,16 +74,17 @@ def stamp_path(key: tuple) -> Path:
 
 
 def code_digest() -> str:
-    """SHA-256 over the contents of the package's source files (the directories of
+    """SHA-256 over the paths and contents of the package's source files (the directories of
     ``_SOURCE_PACKAGES``, read from disk, so the digest does not depend on what is imported), the
     versions of numba and Python, the host CPU and ``NUMBA_CACHE_DIR``: what makes numba's cache
-    entries valid (kernel_cache stamps each kernel by the contents of the modules it imports)."""
+    entries valid and where they are (kernel_cache stamps each kernel by the contents of the modules
+    it imports; numba keeps them beside the sources, or under NUMBA_CACHE_DIR by their path)."""
     digest = hashlib.sha256()
     for part in (numba.__version__, sys.version, platform.machine(), _host_cpu(),
                  os.environ.get("NUMBA_CACHE_DIR", "")):
         digest.update(part.encode() + b"\0")
-    for path in _source_files():
-        digest.update(path.name.encode() + b"\0")
+    for path in _source_files():  # by full path: numba caches each install's kernels apart
+        digest.update(str(path).encode() + b"\0")
         digest.update(path.read_bytes())
     return digest.hexdigest()
 
