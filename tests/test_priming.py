@@ -1,4 +1,4 @@
-"""A machine's first compile runs in a child process, once per code and options (frontend.priming)."""
+"""A machine's first compile runs in a child process, once per code (frontend.priming)."""
 import pytest
 
 from sagfree.frontend import priming, warm
@@ -16,25 +16,22 @@ def _no_child(*args, **kwargs):
 
 
 def test_a_missing_stamp_primes_once_in_a_child(stamps, monkeypatch):
-    key = warm._key("naive", {})
-    assert priming.primed_in_child(key, "naive", None, {})
-    assert priming.stamp_path(key).exists()
+    assert priming.primed_in_child("naive", None, {})
+    assert priming.stamp_path().exists()
     monkeypatch.setattr(priming.subprocess, "run", _no_child)
-    assert not priming.primed_in_child(key, "naive", None, {})
-    other = warm._key("naive", {"curvature": "2d"})  # other model options: their own stamp
-    assert priming.stamp_path(other) != priming.stamp_path(key)
+    assert not priming.primed_in_child("naive", None, {})
+    assert not priming.primed_in_child("asc", None, {"curvature": "2d-average"})  # once per code, not per options
 
 
 def test_a_failed_child_leaves_no_stamp(stamps):
-    key = ("no-such-solver",)
-    assert not priming.primed_in_child(key, "no-such-solver", None, {})  # the child's warm_up raises
-    assert not priming.stamp_path(key).exists()
+    assert not priming.primed_in_child("no-such-solver", None, {})  # the child's warm_up raises
+    assert not priming.stamp_path().exists()
 
 
 def test_the_child_itself_does_not_prime(stamps, monkeypatch):
     monkeypatch.setenv(priming.CHILD, "1")
     monkeypatch.setattr(priming.subprocess, "run", _no_child)
-    assert not priming.primed_in_child(warm._key("naive", {}), "naive", None, {})
+    assert not priming.primed_in_child("naive", None, {})
 
 
 def test_the_digest_follows_sources_and_numba_cache(tmp_path, monkeypatch):
@@ -64,7 +61,7 @@ def test_the_digest_reads_every_package_folder():
 
 
 def test_a_process_first_warm_up_primes_before_it_warms_in_place(stamps, monkeypatch):
-    """warm_up asks for the child once per options key, before its own solve (which then loads)."""
+    """warm_up asks for the child before its own solve (which then loads), once for all solvers."""
     calls = []
 
     def child(command, **kwargs):
@@ -74,5 +71,6 @@ def test_a_process_first_warm_up_primes_before_it_warms_in_place(stamps, monkeyp
     monkeypatch.setattr(priming.subprocess, "run", child)
     monkeypatch.setattr(warm, "_WARM", set())
     assert warm.warm_up("naive") > 0 and calls == ["1"]
-    assert priming.stamp_path(warm._key("naive", None)).exists()
-    assert warm.warm_up("naive") == 0.0 and calls == ["1"]
+    assert priming.stamp_path().exists()
+    assert warm.warm_up("naive") == 0.0 and warm.warm_up("asc", None, {"curvature": "2d-average"}) > 0
+    assert calls == ["1"]

@@ -5,14 +5,17 @@ keeps what LLVM needed for it in the compiling process: a process whose warm-up 
 756 MB resident, one whose warm-up loaded them from the cache 259 MB. A batch forks its workers from
 that process, and each worker's resident set counts the parent's pages again, so a first run broke
 the 1 GB goal of a 10K-strand groom that later runs met (benchmarks/RESULTS.md). So before a
-process's first warm-up of a solver, ``primed_in_child`` runs that warm-up in a fresh interpreter,
-which compiles and stores every kernel and then exits, and the process itself loads them from the
-cache. What tells that this machine's caches already hold them is a stamp file under
-``$SAGFREE_CACHE/primed``, named by a digest of what the cached code depends on (``code_digest``: the
-package's sources, numba, Python, the host CPU and the numba cache directory) and of the warm-up's
-solver and model options: a new digest (an upgrade, an edit) primes again, once. A stamp whose
-numba cache was deleted since only costs the old behaviour (the process compiles in place). A child
-that fails leaves no stamp and costs nothing else: the process warms up in place, as before.
+process's first warm-up, ``primed_in_child`` runs asc's warm-up (whose kernels every solver's
+stabilization uses) and the solver's in a fresh interpreter, which compiles and stores the kernels
+and then exits, and the process itself loads them from the cache. What tells that this machine's
+caches already hold them is a stamp file under ``$SAGFREE_CACHE/primed``, named by a digest of what
+the cached code depends on (``code_digest``: the package's sources, numba, Python, the host CPU and
+the numba cache directory): a new digest (an upgrade, an edit, another install) primes again, once.
+Once per code, not per solver and options: a child costs a few seconds even when it finds
+everything compiled, and the kernels are shared (the model options change the C stencils, which
+compile in a C compiler's process anyway); what a later solver or option adds compiles in place.
+A stamp whose numba cache was deleted since only costs the old behaviour (the process compiles in
+place). A child that fails leaves no stamp and costs nothing else: the process warms up in place.
 """
 from __future__ import annotations
 
@@ -34,19 +37,20 @@ CHILD = "SAGFREE_PRIMING_CHILD"
 #: the package's source directories whose modules hold or feed compiled kernels
 _SOURCE_PACKAGES = ("sagfree", "sagfree.formulation", "sagfree.solvers", "sagfree.baselines",
                     "sagfree.contract", "sagfree.frontend", "sagfree.linalg", "sagfree.scenes")
-#: the child takes this process's import path, then warms up (its arguments pickled on stdin)
-_CHILD_CODE = ("import pickle, sys; path, arguments = pickle.loads(sys.stdin.buffer.read()); sys.path[:] = path; "
-               "from sagfree.frontend.warm import warm_up; warm_up(*arguments)")
+#: the child takes this process's import path, then warms asc and the solver up (arguments pickled on stdin)
+_CHILD_CODE = ("import pickle, sys; path, (solver, options, model) = pickle.loads(sys.stdin.buffer.read()); "
+               "sys.path[:] = path; from sagfree.frontend.warm import warm_up; warm_up('asc', None, model); "
+               "warm_up(solver, options, model)")
 
 
-def primed_in_child(key: tuple, solver: str, solver_options: dict | None, problem_options: dict | None) -> bool:
-    """Run ``warm_up(solver, solver_options, problem_options)`` in a child interpreter unless the
-    stamp of ``key`` (warm's options key) says this machine has done so for this code; returns
+def primed_in_child(solver: str, solver_options: dict | None, problem_options: dict | None) -> bool:
+    """Run asc's and ``solver``'s warm-up (``warm_up(solver, solver_options, problem_options)``) in
+    a child interpreter unless the stamp says this machine has done so for this code; returns
     whether a child ran and succeeded. Never raises."""
     if os.environ.get(CHILD):
         return False
     try:
-        stamp = stamp_path(key)
+        stamp = stamp_path()
         if stamp.exists():
             return False
         arguments = pickle.dumps((sys.path, (solver, solver_options, problem_options)))
@@ -60,17 +64,15 @@ def primed_in_child(key: tuple, solver: str, solver_options: dict | None, proble
     if done.returncode != 0:
         return False
     try:
-        stamp.write_text(f"{solver} {key!r}\n")
+        stamp.write_text(f"{solver}\n")
     except OSError:
         pass
     return True
 
 
-def stamp_path(key: tuple) -> Path:
-    """The stamp file of the warm-up ``key`` for this code on this machine."""
-    digest = hashlib.sha256(code_digest().encode())
-    digest.update(repr(key).encode())
-    return cache_dir() / "primed" / f"{digest.hexdigest()[:32]}.stamp"
+def stamp_path() -> Path:
+    """The stamp file of this code on this machine."""
+    return cache_dir() / "primed" / f"{code_digest()[:32]}.stamp"
 
 
 def code_digest() -> str:

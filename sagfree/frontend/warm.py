@@ -14,7 +14,7 @@ warm-up strand, held by its root alone, starts at its optimum, and the first str
 Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
 prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP,
 the stabilization's compiled round (the warm-up strand is stable). On a machine whose caches do not
-hold them yet, the first warm-up of each solver runs once in a child interpreter first (priming), so
+hold this code's kernels yet, the first warm-up runs once in a child interpreter first (priming), so
 that the process that solves, and the workers it forks, load the kernels instead of carrying a compile.
 """
 from __future__ import annotations
@@ -144,7 +144,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     if key in _WARM:
         return 0.0
     start = time.perf_counter()
-    primed_in_child(key, solver, solver_options, problem_options)  # a first compile: in a child (priming)
+    primed_in_child(solver, solver_options, problem_options)  # a machine's first compile: in a child (priming)
     _WARM.add(key)
     _quietly(interior_point.compile_kernels)
     entry = solver_entry(solver)
