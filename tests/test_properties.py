@@ -16,6 +16,7 @@ import contextlib
 import itertools
 import os
 import struct
+import warnings
 
 import numpy as np
 import pytest
@@ -85,16 +86,20 @@ def write_file(directory, ext: str, data: bytes):
 
 def check_reader(ext: str, path, keep_invalid: bool):
     """Read ``path``: a list of strands (InvalidStrand allowed with keep_invalid) or a ValueError with
-    a message. Any other exception propagates and fails the test. Returns the list or None."""
+    a message; a warning (an implausible radius from a corrupted thickness) must name the file. Any
+    other exception propagates and fails the test. Returns the list or None."""
     reader = FORMATS[ext][1]
     try:
-        with memory_guard():
+        with memory_guard(), warnings.catch_warnings(record=True) as warned:
+            warnings.simplefilter("always")
             out = reader(path, keep_invalid=keep_invalid)
     except ValueError as exc:
         assert str(exc).strip(), f"empty ValueError message from {reader.__name__}"
         return None
     finally:
         path.unlink(missing_ok=True)
+    for warning in warned:
+        assert path.name in str(warning.message), f"{reader.__name__} warned without naming the file: {warning.message}"
     assert isinstance(out, list)
     for item in out:
         if isinstance(item, InvalidStrand):
