@@ -34,6 +34,14 @@ def test_the_child_itself_does_not_prime(stamps, monkeypatch):
     assert not priming.primed_in_child("naive", None, {})
 
 
+@pytest.mark.parametrize("executable", ["/opt/blender/blender", "/opt/hfs/bin/houdini", ""])
+def test_no_child_where_the_executable_is_not_python(stamps, monkeypatch, executable):
+    """An application embedding Python: its executable with -c could start the application."""
+    monkeypatch.setattr(priming.sys, "executable", executable)
+    monkeypatch.setattr(priming.subprocess, "run", _no_child)
+    assert not priming.primed_in_child("naive", None, {})
+
+
 def test_the_digest_follows_sources_and_numba_cache(tmp_path, monkeypatch):
     source = tmp_path / "kernels.py"
     source.write_text("x = 1\n")

@@ -16,6 +16,8 @@ everything compiled, and the kernels are shared (the model options change the C 
 compile in a C compiler's process anyway); what a later solver or option adds compiles in place.
 A stamp whose numba cache was deleted since only costs the old behaviour (the process compiles in
 place). A child that fails leaves no stamp and costs nothing else: the process warms up in place.
+Inside an application that embeds Python (a DCC whose ``sys.executable`` is the application itself)
+no child is started: running that executable with ``-c`` could start the application.
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ import importlib.util
 import os
 import pickle
 import platform
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -37,6 +40,8 @@ CHILD = "SAGFREE_PRIMING_CHILD"
 #: the package's source directories whose modules hold or feed compiled kernels
 _SOURCE_PACKAGES = ("sagfree", "sagfree.formulation", "sagfree.solvers", "sagfree.baselines",
                     "sagfree.contract", "sagfree.frontend", "sagfree.linalg", "sagfree.scenes")
+#: the names of a Python interpreter's executable (python, python3.11, pypy3, python.exe)
+_INTERPRETER = re.compile(r"(python|pypy)[\d.]*(\.exe)?", re.IGNORECASE)
 #: the child takes this process's import path, then warms asc and the solver up (arguments pickled on stdin)
 _CHILD_CODE = ("import pickle, sys; path, (solver, options, model) = pickle.loads(sys.stdin.buffer.read()); "
                "sys.path[:] = path; from sagfree.frontend.warm import warm_up; warm_up('asc', None, model); "
@@ -47,7 +52,7 @@ def primed_in_child(solver: str, solver_options: dict | None, problem_options: d
     """Run asc's and ``solver``'s warm-up (``warm_up(solver, solver_options, problem_options)``) in
     a child interpreter unless the stamp says this machine has done so for this code; returns
     whether a child ran and succeeded. Never raises."""
-    if os.environ.get(CHILD):
+    if os.environ.get(CHILD) or not _INTERPRETER.fullmatch(Path(sys.executable or "").name):
         return False
     try:
         stamp = stamp_path()
