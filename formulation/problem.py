@@ -390,9 +390,8 @@ class Problem:
         p = self.check_parameters(p)
         out = np.zeros((self.n_vertices, 3))
         if self.contacts.count:
-            supports = p[self.layout.blocks[CONTACT_BLOCK]].reshape(self.contacts.count, -1)
-            scale = self.row_scale[dofs.position_index(self.n_vertices)[self.contacts.vertices, 0]]
-            out[self.contacts.vertices] = np.einsum("kj,kjd->kd", supports, self.contacts.directions) * scale[:, None]
+            index, directions, _, scale = self._contact_pushes
+            out[self.contacts.vertices] = np.einsum("kj,kjd->kd", p[index], directions) * scale[:, None]
         return out
 
     @timed(MODEL)
@@ -695,9 +694,10 @@ class Problem:
         the pyramid it sticks: all three positions are held. The basis: the free DOFs with each
         resting vertex's 3 positions replaced by its tangents (or by nothing when it sticks), kept in
         strand order so the reduced Hessian stays banded. Where the stencils are compiled, the
-        Hessian's band is projected onto it and solved in one compiled call
-        (linalg.eigen.projected_eigenpair: 5.2 -> 0.8 ms on a 100-vertex strand lying on the head);
-        elsewhere sparse matrices (the same eigenpair to rounding: tests/test_contact.py)."""
+        Hessian's band is projected onto it and solved in one compiled call, O(n)
+        (linalg.eigen.projected_eigenpair; sparse matrix products cost six times as much on a strand
+        lying on the head); elsewhere sparse matrices (the same eigenpair to rounding:
+        tests/test_contact.py)."""
         vertices = self.contacts.vertices[resting]
         forces = self.contact_forces(p)[vertices]
         normal_force = np.einsum("kd,kd->k", forces, self.contacts.normals[resting])
@@ -715,9 +715,7 @@ class Problem:
         order[np.argsort(keys, kind="stable")] = np.arange(keys.size)
         if self._compiled_hessian is not None:  # the band and the projection compiled, O(n)
             band = self.hessian_band(p)
-            for k in range(3):  # the blocks' lower triangles on the vertices' position DOFs
-                for j in range(3 - k):
-                    band[k, positions[sliding, j]] += blocks[:, j + k, j]
+            add_vertex_blocks(band, blocks, vertices[sliding])
             support, coefficients = np.full((keys.size, 3), -1, dtype=np.int64), np.zeros((keys.size, 3))
             support[order[:kept.size], 0], coefficients[order[:kept.size], 0] = kept, 1.0
             support[order[kept.size:]] = np.repeat(positions[sliding], 2, axis=0)
@@ -954,8 +952,8 @@ def _band_scatter(n_vertices: int):
     """(target, source, ones) of jacobian.scatter_values from the edge and vertex stencils' raveled
     Hessian blocks (dofs.edge_stencil_index, vertex_stencil_index), concatenated in that order, to
     (HALF_BANDWIDTH + 1, 4n - 1) band storage: the lower-triangle entries, each kind's in C order,
-    as the np.bincount of their values did (the same sums in the same order; the band of a
-    100-vertex strand 158 -> 146 us); ~0.15 ms to build, one per strand size."""
+    as the np.bincount of their values did (the same sums in the same order, faster); built once
+    per strand size."""
     return _build_band_scatter([dofs.edge_stencil_index(n_vertices), dofs.vertex_stencil_index(n_vertices)],
                                4 * n_vertices - 1)
 

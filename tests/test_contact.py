@@ -203,14 +203,6 @@ def test_bodies_travel_through_the_command_line(tmp_path, capsys):
     assert params.problem_options["bodies"] == ["sphere:0.05,0,-0.02005,0.02"]
 
 
-@pytest.fixture(scope="module")
-def tilted():
-    """`horizontal` touching a 5 mm ball at vertex 12, the contact normal tilted 30 degrees towards
-    the root: frictionless, the strand slides off sideways (unstable); friction holds it."""
-    strand = sagfree.scenes.horizontal(n=20)
-    return strand, Sphere(strand.points[12] - (0.005 + strand.radius) * np.array([0.5, 0, 0.866]), 0.005)
-
-
 def test_friction_keeps_the_support_inside_the_pyramid_and_matches_ipopt(tilted):
     strand, ball = tilted
     problem = sagfree.Problem(strand, bodies=[ball], friction=0.5, stabilize=False)

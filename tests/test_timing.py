@@ -92,10 +92,9 @@ print(len(interior_point.signatures), parameter_hessians.cache_info().currsize, 
 
 def test_the_warm_up_prepares_what_rare_branches_run(tmp_path):
     """No warm-up strand walks an active set or needs Newton-SQP, so the QPs' interior-point
-    fallback (2.6 s of a cold run's batch wall on long hair on a head) and the constraints'
-    curvature stencils (0.12 s of a cold cable's Result.time) were built inside timed solves, and
-    the warm-up strand is stable, so the stabilization round's kernel (floor_steps, ~9 s cold) was
-    compiled by every worker of a batch: in a fresh process the warm-up has all three ready."""
+    fallback and the constraints' curvature stencils were built inside timed solves, and the
+    warm-up strand is stable, so the stabilization round's kernel (floor_steps) was compiled by
+    every worker of a batch: in a fresh process the warm-up has all three ready."""
     run = subprocess.run([sys.executable, "-c", WARMED_RARE_BRANCHES], capture_output=True, text=True,
                          timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]

@@ -6,7 +6,7 @@ solve will land on, and steps again from there while that point is below the mar
 held by its root alone each check is the landing (solvers.statics_start: the floored problem's
 optimum, from the least rest change its first solve remembered), its residual, its stressed
 Hessian band and smallest eigenpair, and the stiffening gradient there (at_rest.stiffening_gradient):
-compiled kernels with Python between them (~0.25 ms of a stabilized 100-vertex strand's ~5 ms).
+compiled kernels with Python between them.
 ``checked_floors`` runs the round in one compiled call, in the same order on the same inputs, so
 its floors and the landing's eigenpair are the Python path's bit for bit
 (tests/test_floor_steps.py), and it leaves the landing's eigenpair in the Problem's memo, where

@@ -23,7 +23,7 @@ make its optimum stable. They are found by a cutting-plane loop on the bare prob
    restiffened onto the floors keeps c = 0 (restiffen), so lambda there is one eigenvalue; while it
    is below the margin, the step is repeated from there (at most FLOOR_STEPS times). From a strongly unstable optimum
    (lambda ~ -10 x the margin) the first step falls short by the concavity, and each shortfall cost
-   a whole re-solve (groom(300, 100, seed=0): 93 rounds without these steps, 51 with them). For a
+   a whole re-solve (these steps nearly halve a groom's rounds, benchmarks/RESULTS.md). For a
    strand held by its root alone the step and its checks are one compiled call (floor_steps);
 3. solve the floored problem from the solver's own start again, and repeat.
 

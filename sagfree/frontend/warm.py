@@ -154,10 +154,10 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
 
 def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict) -> None:
     """The warm-up strand solved, then its constraints' curvature evaluated once (asc's Newton-SQP,
-    for held tips and long strands, builds those stencils on first use, which put 0.12 s of a cold
-    run's compile into the first such strand's Result.time) and a stabilization round taken from
-    its optimum (the warm-up strand is stable, and the round's compiled kernels, floor_steps, took
-    ~9 s of compiling into the first stabilized strand of each worker of a cold batch)."""
+    for held tips and long strands, builds those stencils on first use, inside the first such
+    strand's Result.time otherwise) and a stabilization round taken from its optimum (the warm-up
+    strand is stable, and the round's compiled kernels, floor_steps, otherwise compile or load in
+    the first stabilized strand of each worker of a batch)."""
     problem = _warm_strand(problem_options)
     options = {**_structure_options(solver_options), **entry.warm_options}
     for path in ({}, *entry.warm_paths):

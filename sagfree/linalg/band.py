@@ -302,12 +302,14 @@ def lower_band(matrix: sp.spmatrix) -> np.ndarray:
     return band
 
 
-def add_vertex_blocks(band: np.ndarray, blocks: np.ndarray) -> None:
-    """Add symmetric 3x3 blocks (n, 3, 3) on the consecutive DOFs 4i, 4i+1, 4i+2 of a strand's lower
-    band (the vertex positions of the interleaved q), in place."""
+def add_vertex_blocks(band: np.ndarray, blocks: np.ndarray, vertices: np.ndarray | None = None) -> None:
+    """Add symmetric 3x3 blocks (m, 3, 3) on the consecutive DOFs 4i, 4i+1, 4i+2 of a strand's lower
+    band (the vertex positions of the interleaved q) of the distinct ``vertices`` i (default: the
+    first m vertices, one block each), in place."""
+    first = 4 * (np.arange(len(blocks)) if vertices is None else np.asarray(vertices))
     for k in range(3):
         for j in range(3 - k):
-            band[k, 4 * np.arange(len(blocks)) + j] += blocks[:, j + k, j]
+            band[k, first + j] += blocks[:, j + k, j]
 
 
 @numba.njit(cache=True)
