@@ -217,6 +217,8 @@ class BatchFunction:
         self.function = function
         self._in_sizes = [function.nnz_in(k) for k in range(function.n_in())]
         self._out_shapes = [function.size_out(k) for k in range(function.n_out())]
+        #: each output's entries per stencil (its nonzeros: the stencil functions' outputs are dense)
+        self.out_sizes = tuple(function.nnz_out(k) for k in range(function.n_out()))
         self._driver = driver
         if driver is not None:
             driver.restype = None

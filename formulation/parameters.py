@@ -182,6 +182,7 @@ class _LayoutStructure:
     defaults: tuple           # _default_recipe's arrays: how _default_values fills p0, the box and shares
     concatenated: dict = field(default_factory=dict, compare=False)  # ParameterLayout.concatenated_blocks
     slot_coefficients: dict = field(default_factory=dict, compare=False)  # _slot_map's, by stencil kind
+    derived: dict = field(default_factory=dict, compare=False)  # ParameterLayout.by_structure's
 
     @functools.cached_property
     def owners(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
@@ -442,6 +443,15 @@ class ParameterLayout:
             if name in self.blocks:
                 mask[self.blocks[name]] = True
         return mask
+
+    def by_structure(self, key: str, build):
+        """``build(self)``, made once for the layouts of one structure (the strands of a groom of one
+        size and set of blocks): for what depends only on the blocks' entries. Not copied: readers
+        must not write into it."""
+        derived = self._structure.derived
+        if key not in derived:
+            derived[key] = build(self)
+        return derived[key]
 
     def concatenated_blocks(self, names) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
         """(the named blocks present, their entries' indices in p concatenated in that order, the

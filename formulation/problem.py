@@ -708,7 +708,9 @@ class Problem:
         sliding = ~sticks
         blocks = -normal_force[sliding, None, None] * self.contacts.curvature[resting[sliding]]
         # reduced coordinates, each with the DOF it sits at (sort key): kept free DOFs, then tangents
-        kept = np.setdiff1d(self.free_index, positions.ravel())
+        excluded = np.zeros(self.q_star.size, dtype=bool)
+        excluded[positions.ravel()] = True
+        kept = self.free_index[~excluded[self.free_index]]  # np.setdiff1d's (sorted), without its sort
         tangents = self.contacts.tangents[resting[sliding]]                       # (s, 2, 3)
         keys = np.concatenate([kept, np.repeat(positions[sliding, 0], 2) + np.tile([0.0, 0.5], sliding.sum())])
         order = np.empty(keys.size, dtype=int)

@@ -58,7 +58,7 @@ def rest_geometry(points: np.ndarray, theta: np.ndarray, a1_first: np.ndarray, r
         return rest_geometry_numpy(points, theta, a1_first, radius, edge_functions, vertex_functions,
                                    vertex_fixed_functions)
     n = len(points)
-    kappa_size = drivers[1].function.nnz_out(0)
+    kappa_size = drivers[1].out_sizes[0]
     (tangents, a1, q_star, edge_q, vertex_q, reference, l0, kappa, twist, edge_geometry, vertex_geometry, kinematics,
      jacobian) = _rest_geometry(np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(theta, dtype=float),
                                 np.ascontiguousarray(a1_first, dtype=float), float(radius),

@@ -200,20 +200,9 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                   factorizations=0, factored_rows=0, line_search=0, corrected=0, sqp=0, tightened=0, least_residual=0,
                   newton_sqp=0)
     attempts = feasible_rounds = 0
-    # (start, its KKT distance, seconds of its Result's stability, which make_result's time leaves
-    # out) from one compiled call (solvers.confirmed_start)
+    # the start, its KKT distance and its Result's stability (whose seconds make_result's time
+    # leaves out) from one compiled call (solvers.confirmed_start)
     confirmed, measured = None, 0.0
-    if p_start is None:
-        p_start = problem.p0
-        if (start != "p0" and problem.layout.stiffness == "element" and CONTACT_BLOCK not in problem.blocks
-                and problem.strand.tip != "pinned" and any(b in problem.blocks for b in STIFFNESS_BLOCKS)):
-            confirmed = confirmed_start(problem, tol, kkt_tol) if start == "auto" else None
-            linear = confirmed[0] if confirmed is not None else linear_start(problem, optimal=start == "auto")
-            if linear is not None:
-                p_start, history = linear, [float(np.abs(problem.residual(problem.p0)).max(initial=0.0))]
-    p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
-    target = gradient_tol  # inner target; tightened when the KKT distance disagrees
-    c, J = problem.residual(p), problem.strand_jacobian(p)
 
     def finish(status, message):
         return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock - measured,
@@ -223,10 +212,26 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance {distance:.2e} <= "
                       f"{kkt_tol:g} after {counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
 
+    if p_start is None:
+        p_start = problem.p0
+        if (start != "p0" and problem.layout.stiffness == "element" and CONTACT_BLOCK not in problem.blocks
+                and problem.strand.tip != "pinned" and any(b in problem.blocks for b in STIFFNESS_BLOCKS)):
+            confirmed = confirmed_start(problem, tol, kkt_tol) if start == "auto" else None
+            linear = confirmed.p if confirmed is not None else linear_start(problem, optimal=start == "auto")
+            if linear is not None:
+                p_start, history = linear, [_start_violation(problem, confirmed)]
+    if confirmed is not None and confirmed.violation <= tol and confirmed.distance <= kkt_tol:
+        # the start is the optimum, confirmed (the common case): its p is inside the box already
+        p, measured = confirmed.p, confirmed.stability_seconds
+        history.append(confirmed.violation)
+        return converged_at(confirmed.violation, confirmed.distance)
+    p = np.clip(np.asarray(p_start, dtype=float), lower, upper)
+    target = gradient_tol  # inner target; tightened when the KKT distance disagrees
+    c, J = problem.residual(p), problem.strand_jacobian(p)
     violation = float(np.abs(c).max(initial=0.0))
-    if violation <= tol:  # the start at the optimum (statics_start) or a p_start at one: confirmed at once
-        distance = confirmed[1] if confirmed is not None else kkt_optimality(problem, p)
-        measured = confirmed[2] if confirmed is not None else 0.0
+    if violation <= tol:  # a start at the optimum or a p_start at one: confirmed at once
+        distance = confirmed.distance if confirmed is not None else kkt_optimality(problem, p)
+        measured = confirmed.stability_seconds if confirmed is not None else 0.0
         if distance <= kkt_tol:
             history.append(violation)
             return converged_at(violation, distance)
@@ -587,6 +592,14 @@ def _crawls(progress: list[tuple[float, float]]) -> bool:
         return False
     (violation, optimality), (old_violation, old_optimality) = progress[-1], progress[-1 - CRAWL_WINDOW]
     return violation > CRAWL_DROP * old_violation and optimality > CRAWL_DROP * old_optimality
+
+
+def _start_violation(problem: Problem, confirmed) -> float:
+    """|c(p0)|_inf, the first entry of the history of a solve from the linear start: measured by
+    ``confirmed`` (a solvers.confirmed_start.ConfirmedStart or None) where it evaluated p0."""
+    if confirmed is not None and not np.isnan(confirmed.start_violation):
+        return confirmed.start_violation
+    return float(np.abs(problem.residual(problem.p0)).max(initial=0.0))
 
 
 def _initial_penalty(mu0: float, objective: float, c: np.ndarray) -> float:

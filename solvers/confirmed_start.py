@@ -9,15 +9,18 @@ system), and returns a Result whose stability (Problem.stability: the stressed H
 its smallest eigenpair) make_result measures. Those compiled kernels took about half of that path's
 time and the Python between them most of the rest (benchmarks/study_compiled_floor.py); here they
 run in one compiled call, in the same order on the same inputs, so the start, the distance and
-the memos it fills are the Python path's bit for bit (tests/test_confirmed_start.py): solve_alm
-then finds c and dc/dp at both points and the stability in the Problem's memos, and
-linear_start (the stabilization's landings) the least rest change. The stability is the Result's
+the memos it fills are the Python path's bit for bit (tests/test_confirmed_start.py): a
+confirmed start's Result then finds its stability in the Problem's memos (solve_alm returns it
+from |c|_inf and the distance given here, without looking c up again), and linear_start (the
+stabilization's landings) the least rest change. The stability is the Result's
 measurement, not the solve's: its seconds are returned for solve_alm to leave out of
 Result.time. Where the path does not apply (no compiled stencils, bodies, another attachment, a
 rest system that is not square or singular, a box that admits no multiplier) the call returns
 None and solve_alm takes its Python path.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -35,15 +38,25 @@ from .gauss_newton import at_rest_residual, largest_magnitude
 from .statics_start import applies, statics_indices, statics_optimum
 
 
+class ConfirmedStart(NamedTuple):
+    """What ``confirmed_start`` found: asc's start p, its KKT distance, the seconds of its Result's
+    stability evaluation (for solve_alm to leave out of the time, as make_result's are), and
+    |c|_inf at p0 (NaN where it was not evaluated here: a stabilization twin) and at p, each as
+    np.abs(c).max(initial=0.0)."""
+    p: np.ndarray
+    distance: float
+    stability_seconds: float
+    start_violation: float
+    violation: float
+
+
 def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL,
-                    near: float = 1e-6) -> tuple[np.ndarray, float, float] | None:
-    """(p, KKT distance at p, seconds of the stability evaluation) of asc's start where
-    statics_start applies (module docstring), the distance as ``kkt_optimality(problem, p,
-    near)``; None elsewhere. Fills the Problem's memos: c and dc/dp at p0 and at p, the least rest
-    change and the square-system verdict, and where the start is confirmed (|c|_inf <= tol,
-    distance <= kkt_tol) the stability at p that its Result reports. That evaluation is the
-    Result's measurement, not the solve's: its seconds are for solve_alm to leave out of the time,
-    as make_result's are."""
+                    near: float = 1e-6) -> ConfirmedStart | None:
+    """The ConfirmedStart of asc's start where statics_start applies (module docstring), the
+    distance as ``kkt_optimality(problem, p, near)``; None elsewhere. Fills the Problem's memos: c
+    and dc/dp at p0 and at p, the least rest change and the square-system verdict, and where the
+    start is confirmed (|c|_inf <= tol, distance <= kkt_tol) the stability at p that its Result
+    reports."""
     kernels, stability = problem.at_rest_kernels, problem.stability_kernels
     if kernels is None or stability is None or timing.CLOCK is None or not applies(problem):
         return None
@@ -73,7 +86,9 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
         problem.remember_at_rest(p, f, values)
         if mode.size:
             problem.remember_stability(p, float(eigenvalue), mode)
-        return p, float(distance), float(seconds[2])
+        return ConfirmedStart(p, float(distance), float(seconds[2]),
+                              float(np.abs(f0[free] / row_scale).max(initial=0.0)) if f0.size else np.nan,
+                              float(np.abs(f[free] / row_scale).max(initial=0.0)))
     return None
 
 

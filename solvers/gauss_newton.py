@@ -143,10 +143,12 @@ def at_rest_residual(p, forces_args, free, row_scale):  # pragma: no cover - com
 
 @numba.njit(cache=True)
 def largest_magnitude(c):  # pragma: no cover - compiled
-    """np.abs(c).max(initial=0.0)."""
+    """np.abs(c).max(initial=0.0): a NaN entry makes it NaN (a residual that is not a number is not small)."""
     largest = 0.0
     for value in c:
-        largest = max(largest, abs(value))
+        magnitude = abs(value)
+        if not magnitude <= largest:  # larger, or NaN: kept from then on
+            largest = magnitude if largest == largest else largest
     return largest
 
 

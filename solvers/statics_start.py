@@ -79,7 +79,11 @@ def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
 def statics_indices(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """statics_optimum's block indices into p: the rest lengths, stretch and bend multipliers, and
     (S, 3) each vertex's rest curvature and twist entries."""
-    blocks = problem.layout.blocks
+    return problem.layout.by_structure("statics indices", _statics_indices)
+
+
+def _statics_indices(layout) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    blocks = layout.blocks
     rest = np.column_stack([blocks["rest_curvature"].reshape(-1, 2), blocks["rest_twist"]])
     return blocks["rest_length"], blocks["stretch_stiffness"], blocks["bend_stiffness"], rest
 

@@ -24,7 +24,7 @@ def python_kkt_distance(problem, p):
 def test_the_compiled_start_and_distance_are_the_python_paths(vertices):
     for strand in sagfree.scenes.groom(6, vertices, seed=2):
         compiled, python = Problem(strand), Problem(strand)
-        p, distance, _ = confirmed_start(compiled)
+        p, distance, _, start_violation, violation = confirmed_start(compiled)
         start = np.clip(alm.linear_start(python), python.layout.lower, python.layout.upper)
         assert np.array_equal(p, start)
         assert distance == python_kkt_distance(python, start) <= 1e-8  # the start is the optimum
@@ -36,12 +36,13 @@ def test_the_compiled_start_and_distance_are_the_python_paths(vertices):
         for point in (p0, p):
             assert np.array_equal(compiled.residual(point), python.residual(point))
             assert np.array_equal(compiled.strand_jacobian(point).data, python.strand_jacobian(point).data)
+        assert start_violation == np.abs(python.residual(p0)).max() and violation == np.abs(python.residual(p)).max()
         assert np.array_equal(compiled.bound_independent("least rest change", lambda: None),
                               alm._least_rest_change(python))
         floors = python.layout.lower.copy()  # a stabilization's twin: from the remembered least change
         floors[python.layout.blocks["bend_stiffness"][:3]] = 1.5
-        p, distance, measured = confirmed_start(compiled.with_lower_bounds(floors))
-        assert measured == 0  # a twin's start: its landing measured the stability there
+        p, distance, measured, start_violation, _ = confirmed_start(compiled.with_lower_bounds(floors))
+        assert measured == 0 and np.isnan(start_violation)  # a twin's start: from its landing
         twin = python.with_lower_bounds(floors)
         start = np.clip(alm.linear_start(twin), twin.layout.lower, twin.layout.upper)
         assert np.array_equal(p, start) and distance == python_kkt_distance(twin, start)

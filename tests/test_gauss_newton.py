@@ -151,3 +151,10 @@ def test_the_correction_solves_the_gauss_newton_system_for_the_linearization_err
     system = hessian.to_dense()[np.ix_(free, free)]  # condition ~1e16 (rest-length columns): a backward error
     residual = system @ correction[free] + pulled[free]
     assert np.abs(residual).max() <= 1e-12 * (np.abs(system) @ np.abs(correction[free]) + np.abs(pulled[free])).max()
+
+
+@pytest.mark.parametrize("c", [[1.0, np.nan, 2.0], [np.nan, 2.0], [3.0, -np.nan], [-4.0, 1.0], []])
+def test_the_compiled_loops_residual_norm_is_numpys_nan_included(c):
+    """|c|_inf as the Python loop takes it: a residual that is not a number must not count as small."""
+    c = np.array(c, dtype=float)
+    assert np.array_equal(gauss_newton.largest_magnitude(c), np.abs(c).max(initial=0.0), equal_nan=True)

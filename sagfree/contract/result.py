@@ -209,12 +209,17 @@ def make_result(problem: Problem, p: np.ndarray, solver: str, status: str, messa
             message += (f"; the rest state is UNSTABLE (smallest eigenvalue {eigenvalue:.3g} s^-2): a push "
                         "grows and the strand leaves q*")
         contacts = problem.contact_forces(p)
-        load = problem.external_forces[dofs.position_index(problem.n_vertices)].sum(axis=0)
-        support = float(-contacts.sum(axis=0) @ load / (load @ load)) if load @ load > 0 else 0.0
+        support = _support(problem, contacts) if problem.contacts.count else 0.0
         residual_inf, max_force, objective, stiffening, rest_change = measurements(problem, p)
         return Result(solver, p, status, message, dict(iterations), residual_inf, max_force, objective,
                       stiffening, rest_change, time, eigenvalue, stable, list(history or []), problem.physical(p), floors,
                       float("nan") if rest is None else rest.relative_sag, contacts, support, float(setup_time))
+
+
+def _support(problem: Problem, contacts: np.ndarray) -> float:
+    """Result.support: the share of the load the supports ``contacts`` (n, 3) carry."""
+    load = problem.external_forces[dofs.position_index(problem.n_vertices)].sum(axis=0)
+    return float(-contacts.sum(axis=0) @ load / (load @ load)) if load @ load > 0 else 0.0
 
 
 def status_counts(results: list[Result]) -> dict[str, int]:
