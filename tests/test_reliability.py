@@ -160,3 +160,4 @@ def test_a_result_survives_pickling_with_and_without_contact_forces():
         assert copy.contact_forces.shape == forces.shape and np.array_equal(copy.contact_forces, forces)
         assert np.array_equal(copy.p, result.p) and copy.physical.keys() == result.physical.keys()
         assert copy.message == result.message and copy.iterations == result.iterations
+        assert repr(copy).startswith("Result(solver='asc', status=")

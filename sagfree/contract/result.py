@@ -49,9 +49,9 @@ class Result:
     problem), else None; static_sag: for an ``infeasible`` strand, the static sag of p over L (the
     largest vertex displacement of the equilibrium q* relaxes into, formulation.simulation.equilibrium;
     NaN otherwise); contact_forces: (n, 3) the bodies' push on each vertex at q* (N; zero away from
-    them; without bodies one read-only array of zeros shared by the Results of a strand size, 2.4 KB
-    per 100-vertex strand otherwise held 10K times); support: the share of the strand's weight (and loads) they carry, the
-    supports' total along -f_ext over |f_ext| summed (0 without bodies); setup_time: one-time cost
+    them; without bodies one read-only array of zeros shared by the Results of a strand size);
+    support: the share of the strand's weight (and loads) they carry, the supports' total along
+    -f_ext over |f_ext| summed (0 without bodies); setup_time: one-time cost
     (s) the solver paid before solving and that ``time`` excludes (Ipopt: building its instance
     for a new strand size, compiling its model the first time), 0 otherwise; time_split: ``time``
     split into seconds of model evaluation, linear algebra and the rest ({model, linear_algebra,
@@ -98,17 +98,9 @@ class Result:
         forces = state["contact_forces"]
         if isinstance(forces, tuple):
             shape = tuple(forces[1])
-            state = {**state, "contact_forces": no_contact_forces(shape[0]) if shape[1:] == (3,) else np.zeros(shape)}
+            zeros = no_contact_forces(shape[0]) if shape[1:] == (3,) else np.zeros(shape)
+            state = {**state, "contact_forces": zeros}
         self.__dict__.update(state)
-
-
-@functools.lru_cache(maxsize=64)
-def no_contact_forces(n_vertices: int) -> np.ndarray:
-    """Result.contact_forces of a strand of ``n_vertices`` without bodies: (n, 3) zeros, read-only,
-    one array per size."""
-    zeros = np.zeros((n_vertices, 3))
-    zeros.flags.writeable = False
-    return zeros
 
     def __repr__(self) -> str:
         counts = ", ".join(f"{k}={v}" for k, v in self.iterations.items())
@@ -118,6 +110,15 @@ def no_contact_forces(n_vertices: int) -> np.ndarray:
                 f"time={self.time:.3g} s, min_eigenvalue={self.min_eigenvalue:.3g} s^-2, stable={self.stable}"
                 f"{', ' + stiff if stiff else ''})\n"
                 f"  message: {self.message}")
+
+
+@functools.lru_cache(maxsize=64)
+def no_contact_forces(n_vertices: int) -> np.ndarray:
+    """Result.contact_forces of a strand of ``n_vertices`` without bodies: (n, 3) zeros, read-only,
+    one array per size."""
+    zeros = np.zeros((n_vertices, 3))
+    zeros.flags.writeable = False
+    return zeros
 
 
 def measurements(problem: Problem, p: np.ndarray) -> tuple[float, float, float, dict, dict]:
