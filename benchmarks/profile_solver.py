@@ -24,6 +24,7 @@ import sagfree.solvers.gauss_newton as gauss_newton
 from sagfree.formulation.problem import Problem
 
 PARTS = [
+    (alm, "confirmed_start", "start, KKT distance, stability (one compiled call)"),
     (alm, "linear_start", "linear start (one band LU)"),
     (alm, "statics_start", "the start at the optimum (in the linear start)"),
     (gauss_newton, "inner_solve", "Gauss-Newton inner solves (compiled: QPs, J^T J, c, J)"),
@@ -38,6 +39,7 @@ PARTS = [
     (Problem, "__init__", "Problem construction"),
     (Problem, "_stability_at_rest", "stability at q* (margin at p0, each Result's p)"),
     (stabilize, "floors_loop", "stabilization rounds (floors, re-solves)"),
+    (stabilize, "checked_floors", "a round's floors and their checks (one compiled call)"),
     (stabilize, "_floors_checked_by_restiffening", "floors checked by restiffening (in the rounds)"),
 ]
 
