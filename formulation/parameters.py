@@ -180,7 +180,6 @@ class _LayoutStructure:
     edge_index: np.ndarray    # (n - 1, 2)
     vertex_index: np.ndarray  # (n - 2, 7)
     defaults: tuple           # _default_recipe's arrays: how _default_values fills p0, the box and shares
-    concatenated: dict = field(default_factory=dict, compare=False)  # ParameterLayout.concatenated_blocks
     slot_coefficients: dict = field(default_factory=dict, compare=False)  # _slot_map's, by stencil kind
     derived: dict = field(default_factory=dict, compare=False)  # ParameterLayout.by_structure's
 
@@ -193,6 +192,17 @@ class _LayoutStructure:
             owner[ix], within[ix] = number, np.arange(ix.size)
         owner.flags.writeable = within.flags.writeable = False
         return tuple(self.blocks), owner, within
+
+
+def _concatenated(blocks: dict, names) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """ParameterLayout.concatenated_blocks' arrays, read-only."""
+    present = tuple(name for name in names if name in blocks)
+    parts = [blocks[name] for name in present]
+    offsets = np.zeros(len(parts) + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum([part.size for part in parts])
+    index = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+    index.flags.writeable = offsets.flags.writeable = False
+    return present, index, offsets
 
 
 @functools.lru_cache(maxsize=16)
@@ -444,10 +454,10 @@ class ParameterLayout:
                 mask[self.blocks[name]] = True
         return mask
 
-    def by_structure(self, key: str, build):
-        """``build(self)``, made once for the layouts of one structure (the strands of a groom of one
-        size and set of blocks): for what depends only on the blocks' entries. Not copied: readers
-        must not write into it."""
+    def by_structure(self, key, build):
+        """``build(self)``, made once per ``key`` (hashable) for the layouts of one structure (the
+        strands of a groom of one size and set of blocks): for what depends only on the blocks'
+        entries. Not copied: readers must not write into it."""
         derived = self._structure.derived
         if key not in derived:
             derived[key] = build(self)
@@ -458,15 +468,7 @@ class ParameterLayout:
         offset of each block in them: len + 1 entries), shared by the layouts of one structure (every
         Result's summaries ask for the same few)."""
         names = tuple(names)
-        if names not in self._structure.concatenated:
-            present = tuple(name for name in names if name in self.blocks)
-            parts = [self.blocks[name] for name in present]
-            offsets = np.zeros(len(parts) + 1, dtype=np.int64)
-            offsets[1:] = np.cumsum([part.size for part in parts])
-            index = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
-            index.flags.writeable = offsets.flags.writeable = False
-            self._structure.concatenated[names] = (present, index, offsets)
-        return self._structure.concatenated[names]
+        return self.by_structure(("concatenated", names), lambda layout: _concatenated(layout.blocks, names))
 
     def locate(self, index: int) -> tuple[str, str]:
         """(block, element) of entry ``index`` of p, e.g. ("bend_stiffness", "vertex 3")."""

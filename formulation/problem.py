@@ -695,9 +695,8 @@ class Problem:
         resting vertex's 3 positions replaced by its tangents (or by nothing when it sticks), kept in
         strand order so the reduced Hessian stays banded. Where the stencils are compiled, the
         Hessian's band is projected onto it and solved in one compiled call, O(n)
-        (linalg.eigen.projected_eigenpair; sparse matrix products cost six times as much on a strand
-        lying on the head); elsewhere sparse matrices (the same eigenpair to rounding:
-        tests/test_contact.py)."""
+        (linalg.eigen.projected_eigenpair; the sparse products B^T H B dominated a strand's solve on
+        a body); elsewhere sparse matrices (the same eigenpair to rounding: tests/test_contact.py)."""
         vertices = self.contacts.vertices[resting]
         forces = self.contact_forces(p)[vertices]
         normal_force = np.einsum("kd,kd->k", forces, self.contacts.normals[resting])

@@ -229,9 +229,8 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     target = gradient_tol  # inner target; tightened when the KKT distance disagrees
     c, J = problem.residual(p), problem.strand_jacobian(p)
     violation = float(np.abs(c).max(initial=0.0))
-    if violation <= tol:  # a start at the optimum or a p_start at one: confirmed at once
-        distance = confirmed.distance if confirmed is not None else kkt_optimality(problem, p)
-        measured = confirmed.stability_seconds if confirmed is not None else 0.0
+    if violation <= tol and confirmed is None:  # another start at the optimum: confirmed at once
+        distance = kkt_optimality(problem, p)
         if distance <= kkt_tol:
             history.append(violation)
             return converged_at(violation, distance)
@@ -241,7 +240,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     if history:  # started from the linear start: its least-squares multipliers (linear_start)
         estimate = least_squares_multipliers(model.w * (p - model.p0), J, scale, p, lower, upper)
         lam = estimate if np.all(np.isfinite(estimate)) else lam
-    history = history + [float(np.abs(c).max(initial=0.0))]
+    history = history + [violation]
     previous_violation = np.inf
     at_lower, at_upper = p <= lower, p >= upper
     nearby = None  # the last SQP step's factorization while p is its point (kkt_optimality)

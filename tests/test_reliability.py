@@ -151,7 +151,7 @@ def test_a_result_survives_pickling_with_and_without_contact_forces():
     import sagfree
 
     result, other = sagfree.optimize(sagfree.scenes.groom(2, 20, seed=0), jobs=1)
-    # without bodies: one read-only array of zeros per strand size, not 2.4 KB per 100-vertex Result
+    # without bodies: one read-only array of zeros per strand size, not a copy per Result
     assert result.contact_forces is other.contact_forces and not result.contact_forces.flags.writeable
     assert pickle.loads(pickle.dumps(other)).contact_forces is result.contact_forces
     for forces in (result.contact_forces, np.arange(60.0).reshape(20, 3)):

@@ -115,8 +115,8 @@ class Result:
 @functools.lru_cache(maxsize=None)
 def no_contact_forces(n_vertices: int) -> np.ndarray:
     """Result.contact_forces of a strand of ``n_vertices`` without bodies: (n, 3) zeros, read-only,
-    one array per size (kept for every size seen: a groom read from a file has many sizes, and
-    24 n bytes each is less than one Result holds)."""
+    one array per size, kept for every size seen (a groom read from a file has many sizes; each
+    array is smaller than one Result)."""
     zeros = np.zeros((n_vertices, 3))
     zeros.flags.writeable = False
     return zeros

@@ -137,8 +137,8 @@ def map_strands(function, items: list[tuple], arguments: tuple = (), jobs: int |
 def _collector_spared():
     """The objects this process holds now kept out of Python's cyclic garbage collector while the
     block runs (gc.freeze, undone after): a batch's Results pile up in this process, and the full
-    collections they trigger scanned the whole heap of compiled modules (~0.1 s each), a core's
-    time taken from the workers. Left alone where the caller froze objects itself."""
+    collections they trigger scanned the whole heap of compiled modules, a core's time taken from
+    the workers. Left alone where the caller froze objects itself."""
     if gc.get_freeze_count():
         yield
         return

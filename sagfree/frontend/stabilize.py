@@ -88,9 +88,8 @@ def solve_stabilized(function, problem: Problem, options: dict) -> Result:
 def _stabilized(function, problem: Problem, options: dict) -> Result:
     clock = time.perf_counter()
     result = function(problem, **options)
-    blocks = problem.layout.blocks
-    stiffness = any(blocks[name].size for name in (*STIFFNESS_BLOCKS, STRAND_BLOCK) if name in blocks)
-    if (not problem.stabilize or not stiffness or result.status != "converged"
+    stiffness = problem.layout.concatenated_blocks((*STIFFNESS_BLOCKS, STRAND_BLOCK))[1]
+    if (not problem.stabilize or not stiffness.size or result.status != "converged"
             or problem.meets_margin(result.p)):
         return result
     first_objective, counts, history = result.objective, dict(result.iterations), list(result.history)
