@@ -70,12 +70,12 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
         return None  # the saddle system's least change: statics_start does not apply
     layout = problem.layout
     rate, multiplier, bend, rest = statics_indices(problem)
-    seconds = np.zeros(3)
+    seconds, violations = np.zeros(3), np.full(2, np.nan)
     outcome, change, p, f0, values0, f, values, distance, eigenvalue, mode = _confirmed(
         forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
         layout.weights, layout.lower, layout.upper, rate, multiplier, bend, rest, problem.edge_lengths, position,
         np.empty(0) if known is None else known, lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK,
-        float(tol), float(kkt_tol), *stability, seconds)
+        float(tol), float(kkt_tol), *stability, seconds, violations)
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     if f0.size:  # evaluated at p0 here
@@ -86,9 +86,8 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
         problem.remember_at_rest(p, f, values)
         if mode.size:
             problem.remember_stability(p, float(eigenvalue), mode)
-        return ConfirmedStart(p, float(distance), float(seconds[2]),
-                              float(np.abs(f0[free] / row_scale).max(initial=0.0)) if f0.size else np.nan,
-                              float(np.abs(f[free] / row_scale).max(initial=0.0)))
+        return ConfirmedStart(p, float(distance), float(seconds[2]), float(violations[0]),
+                              float(violations[1]))
     return None
 
 
@@ -100,23 +99,25 @@ _CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
 @numba.njit(cache=True)
 def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
                multiplier, bend, rest, lengths, position, known, dgbtrf, dgbtrs, near, clock, clock_id, tol, kkt_tol,
-               hessian_args, eigen_args, scale, free_index, seconds):  # pragma: no cover - compiled
+               hessian_args, eigen_args, scale, free_index, seconds, violations):  # pragma: no cover - compiled
     """(outcome, change, p, f(p0), dc/dp(p0) values, f(p), dc/dp(p) values, KKT distance,
     smallest eigenvalue at p, its mode) of confirmed_start; ``known``: the least rest change if
     known (then nothing is evaluated at p0 and f(p0), dc/dp(p0) are empty: a stabilization twin,
     whose landing measured the stability where its re-solve starts), else empty; otherwise the
     stability is measured where the start is confirmed (|c|_inf <= tol and the distance <= kkt_tol),
     else the mode is empty. seconds[0] and [1] accumulate model evaluation and
-    linear algebra (as the Python path's timing splits them), seconds[2] the stability's."""
+    linear algebra (as the Python path's timing splits them), seconds[2] the stability's;
+    violations[0] and [1] receive |c|_inf at p0 (where evaluated) and at p."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
     stability = (known.size == 0, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
     if known.size:
         return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
                                   rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
-                                  dgbtrs, near, clock, clock_id, stability, seconds)
+                                  dgbtrs, near, clock, clock_id, stability, seconds, violations)
     start = timing.clock_seconds(clock, clock_id, buffer)
     c0, f0 = at_rest_residual(p0, forces_args, free, row_scale)
+    violations[0] = largest_magnitude(c0)
     values0 = at_rest.jacobian_values(p0, *jacobian_args)
     now = timing.clock_seconds(clock, clock_id, buffer)
     seconds[0] += now - start
@@ -138,16 +139,16 @@ def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, res
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
     return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
                               multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near,
-                              clock, clock_id, stability, seconds)
+                              clock, clock_id, stability, seconds, violations)
 
 
 @numba.njit(cache=True)
 def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
                        multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
-                       clock_id, stability, seconds):  # pragma: no cover - compiled
-    """_confirmed from the least rest change on: the optimum it fixes, c and dc/dp there, the KKT
-    distance and the stability (f0, values0: passed through; stability: _confirmed's arguments of
-    the stability evaluation)."""
+                       clock_id, stability, seconds, violations):  # pragma: no cover - compiled
+    """_confirmed from the least rest change on: the optimum it fixes, c and dc/dp there (|c|_inf
+    into violations[1]), the KKT distance and the stability (f0, values0: passed through;
+    stability: _confirmed's arguments of the stability evaluation)."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
     optimum = statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
@@ -156,6 +157,7 @@ def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indi
     p = np.minimum(np.maximum(optimum, lower), upper)  # solve_alm's np.clip
     start = timing.clock_seconds(clock, clock_id, buffer)
     c, f = at_rest_residual(p, forces_args, free, row_scale)
+    violations[1] = largest_magnitude(c)
     values = at_rest.jacobian_values(p, *jacobian_args)
     now = timing.clock_seconds(clock, clock_id, buffer)
     seconds[0] += now - start
@@ -165,7 +167,7 @@ def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indi
     measure, tol, kkt_tol, hessian_args, eigen_args, scale, free_index = stability
     eigenvalue, mode = np.nan, empty
     # Problem.stability at q* (its hessian_band's compiled path, which p0 itself does not take)
-    if measure and largest_magnitude(c) <= tol and distance <= kkt_tol and not np.array_equal(p, p0):
+    if measure and violations[1] <= tol and distance <= kkt_tol and not np.array_equal(p, p0):
         measured = np.zeros(2)
         eigenvalue, mode = at_rest.stability(p, hessian_args, eigen_args, scale, free_index, clock, clock_id, measured)
         seconds[2] += measured[0] + measured[1]
