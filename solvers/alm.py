@@ -209,8 +209,8 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                            history)
 
     def converged_at(violation, distance):
-        return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance {distance:.2e} <= "
-                      f"{kkt_tol:g} after {counts['outer']} outer and {counts['gauss_newton']} Gauss-Newton iterations")
+        return finish("converged", converged_message(violation, distance, tol, kkt_tol, counts["outer"],
+                                                     counts["gauss_newton"]))
 
     if p_start is None:
         p_start = problem.p0
@@ -351,6 +351,14 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         omega = max(target, 0.1 * omega)
     return finish("max_iterations", f"stopped after {max_outer} outer iterations with |c|_inf = "
                   f"{history[-1]:.3g} (target {tol:g}); raise max_outer (command line: --option max_outer=N)")
+
+
+def converged_message(violation: float, distance: float, tol: float, kkt_tol: float, outer: int,
+                      gauss_newton: int) -> str:
+    """The message of a converged asc solve (also of the stabilization's compiled re-solves,
+    frontend.stabilize)."""
+    return (f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance {distance:.2e} <= {kkt_tol:g} after {outer} "
+            f"outer and {gauss_newton} Gauss-Newton iterations")
 
 
 def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam, mu: float, omega: float,

@@ -81,7 +81,7 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
     if f0.size:  # evaluated at p0 here
         problem.remember_at_rest(layout.p0, f0, values0)
         problem.bound_independent("square rest system", lambda: outcome != _NOT_SQUARE)
-    if outcome == _CONFIRMED:
+    if outcome == CONFIRMED:
         problem.bound_independent("least rest change", lambda: change)
         problem.remember_at_rest(p, f, values)
         if mode.size:
@@ -93,7 +93,7 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
 
 #: _confirmed's outcomes: the start and its distance; no optimum (a singular rest system, or a box
 #: that admits no multiplier: the Python path says which); the rest system is not square
-_CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
+CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
 
 
 @numba.njit(cache=True)
@@ -112,9 +112,9 @@ def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, res
     empty = np.empty(0)
     stability = (known.size == 0, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
     if known.size:
-        return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
-                                  rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
-                                  dgbtrs, near, clock, clock_id, stability, seconds, violations)
+        return confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
+                                 rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
+                                 dgbtrs, near, clock, clock_id, stability, seconds, violations)
     start = timing.clock_seconds(clock, clock_id, buffer)
     c0, f0 = at_rest_residual(p0, forces_args, free, row_scale)
     violations[0] = largest_magnitude(c0)
@@ -137,18 +137,19 @@ def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, res
     seconds[1] += now - start
     if change.size == 0 or not np.all(np.isfinite(change)):
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
-    return _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
-                              multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near,
-                              clock, clock_id, stability, seconds, violations)
+    return confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
+                             multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near,
+                             clock, clock_id, stability, seconds, violations)
 
 
 @numba.njit(cache=True)
-def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
-                       multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
-                       clock_id, stability, seconds, violations):  # pragma: no cover - compiled
+def confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
+                      multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
+                      clock_id, stability, seconds, violations):  # pragma: no cover - compiled
     """_confirmed from the least rest change on: the optimum it fixes, c and dc/dp there (|c|_inf
     into violations[1]), the KKT distance and the stability (f0, values0: passed through;
-    stability: _confirmed's arguments of the stability evaluation)."""
+    stability: _confirmed's arguments of the stability evaluation). Also the stabilization's
+    compiled re-solves (frontend.floor_steps.stabilization_rounds)."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
     optimum = statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
@@ -171,4 +172,4 @@ def _confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indi
         measured = np.zeros(2)
         eigenvalue, mode = at_rest.stability(p, hessian_args, eigen_args, scale, free_index, clock, clock_id, measured)
         seconds[2] += measured[0] + measured[1]
-    return _CONFIRMED, change, p, f0, values0, f, values, distance, eigenvalue, mode
+    return CONFIRMED, change, p, f0, values0, f, values, distance, eigenvalue, mode

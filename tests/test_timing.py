@@ -82,11 +82,12 @@ def test_a_kernel_compiled_during_a_solve_is_setup_not_solve_time(monkeypatch):
 WARMED_RARE_BRANCHES = """
 import sagfree
 from sagfree.formulation.stencils import parameter_hessians
-from sagfree.frontend.floor_steps import _checked_floors
+from sagfree.frontend.floor_steps import _checked_floors, _stabilization_rounds
 from sagfree.frontend.warm import warm_up
 from sagfree.solvers.interior_point import interior_point
 warm_up("asc")
-print(len(interior_point.signatures), parameter_hessians.cache_info().currsize, len(_checked_floors.signatures))
+print(len(interior_point.signatures), parameter_hessians.cache_info().currsize, len(_checked_floors.signatures),
+      len(_stabilization_rounds.signatures))
 """
 
 
@@ -94,9 +95,10 @@ def test_the_warm_up_prepares_what_rare_branches_run(tmp_path):
     """No warm-up strand walks an active set or needs Newton-SQP, so the QPs' interior-point
     fallback and the constraints' curvature stencils were built inside timed solves, and the
     warm-up strand is stable, so the stabilization round's kernel (floor_steps) was compiled by
-    every worker of a batch: in a fresh process the warm-up has all three ready."""
+    every worker of a batch, and so was the compiled loop of rounds: in a fresh process the warm-up
+    has all four ready."""
     run = subprocess.run([sys.executable, "-c", WARMED_RARE_BRANCHES], capture_output=True, text=True,
                          timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]
-    signatures, hessians, rounds = map(int, run.stdout.strip().splitlines()[-1].split())
-    assert signatures >= 1 and hessians >= 1 and rounds >= 1
+    signatures, hessians, round_steps, rounds = map(int, run.stdout.strip().splitlines()[-1].split())
+    assert signatures >= 1 and hessians >= 1 and round_steps >= 1 and rounds >= 1

@@ -14,22 +14,38 @@ the re-solve's Result reads it. Where the path does not apply (stencils not comp
 another attachment, no remembered square rest system, a landing that is not the statics optimum
 or does not balance) it says so and the caller takes the Python path. ``raised_floors`` is
 the step itself, the arithmetic both paths share.
+
+``stabilization_rounds`` runs the whole loop there in one compiled call: each round's floors as
+above, then the floored problem's solve as asc makes it (solvers.confirmed_start: the statics
+optimum under the new floors, c and dc/dp there and the KKT distance that confirms it), and its
+stability, until a solution is stable, no multiplier has room, or the rounds run out. The floors,
+the solutions and the eigenvalues are the Python loop's (frontend.stabilize.floors_loop) bit for
+bit (tests/test_floor_steps.py); only the intermediate Results and floored Problems are not made.
+Where a re-solve is not confirmed at once (asc's outer loop would polish it) the call hands the
+whole loop back to Python, which starts it again.
 """
 from __future__ import annotations
 
 import numba
 import numpy as np
 
+from typing import NamedTuple
+
 from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
-from sagfree.linalg import timing
+from sagfree.linalg import lapack, timing
 from sagfree.linalg.pairwise import pairwise_sum
+from sagfree.linalg.saddle import band_order
+from sagfree.solvers.confirmed_start import CONFIRMED, confirmed_optimum
 from sagfree.solvers.gauss_newton import at_rest_residual
 from sagfree.solvers.statics_start import applies, statics_indices, statics_optimum
 
 #: checked_floors' kernel outcomes: floors raised; no multiplier that would raise the eigenvalue has
-#: room (the strand cannot be stabilized inside the boxes); the compiled path does not apply here
-_RAISED, _NO_ROOM, _NOT_APPLICABLE = 0, 1, 2
+#: room (the strand cannot be stabilized inside the boxes); the compiled path does not apply here;
+#: and stabilization_rounds' endings besides those: the last solution is stable; the rounds ran out
+_RAISED, _NO_ROOM, _NOT_APPLICABLE, _STABLE, _MAX_ROUNDS = 0, 1, 2, 3, 4
+#: stabilization_rounds' endings by name (Rounds.ending)
+ENDINGS = {_STABLE: "stable", _NO_ROOM: "no room", _MAX_ROUNDS: "max rounds"}
 
 
 @numba.njit(cache=True)
@@ -130,3 +146,100 @@ def _checked_floors(p, value, mode, lower, upper, weights, stiffness, margin, ov
             break
         floors = more
     return _RAISED, floors, landing, landing_value, landing_mode
+
+
+class Rounds(NamedTuple):
+    """What ``stabilization_rounds`` found: the floored lower bounds, the last solution p (the bare
+    problem's p where no round was taken), its |c|_inf and KKT distance (NaN without a round), its
+    smallest eigenvalue, the rounds taken and how the loop ended (ENDINGS: "stable", "no room" where
+    no multiplier that would raise the eigenvalue has room, "max rounds")."""
+    lower: np.ndarray
+    p: np.ndarray
+    violation: float
+    distance: float
+    value: float
+    rounds: int
+    ending: str
+
+
+def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np.ndarray, stiffness: np.ndarray,
+                         margin: float, overshoot: float, relevant: float, steps: int, max_rounds: int, tol: float,
+                         kkt_tol: float, near: float = 1e-6) -> Rounds | None:
+    """The Rounds of frontend.stabilize.floors_loop with asc from p, asc's converged solution of
+    ``problem`` with smallest eigenvalue ``value`` and mode ``mode`` (module docstring), or None
+    where a round is not on the compiled path (checked_floors' conditions, a saddle system that is
+    not a band, a re-solve that is not confirmed at once): the caller then runs the loop in Python
+    from the start. The last solution's forces, dc/dp and eigenpair go into the Problem's memos,
+    where its Result reads them."""
+    kernels, stability, stiffening = problem.at_rest_kernels, problem.stability_kernels, problem.stiffening_kernel
+    change = problem.remembered("least rest change")
+    if (kernels is None or stability is None or stiffening is None or timing.CLOCK is None or change is None
+            or not problem.remembered("square rest system") or not applies(problem)):
+        return None
+    forces_args, jacobian_args, free, row_scale, structure = kernels
+    indptr, indices = structure[0], structure[1]
+    position = band_order(indptr, indices, free.size)
+    if position is None:
+        return None
+    layout = problem.layout
+    seconds = np.zeros(3)
+    ending, rounds, lower, p, value, mode, f, values, violation, distance = _stabilization_rounds(
+        np.ascontiguousarray(p, dtype=float), float(value), np.ascontiguousarray(mode, dtype=float), layout.lower,
+        layout.upper, layout.weights, stiffness, float(margin), float(overshoot), float(relevant), int(steps),
+        int(max_rounds), float(tol), float(kkt_tol), float(near), change, layout.p0, *statics_indices(problem),
+        problem.edge_lengths, forces_args, jacobian_args, free, row_scale, indptr, indices, position, lapack.DGBTRF,
+        lapack.DGBTRS, *stability, stiffening, *timing.CLOCK, seconds)
+    timing.add(timing.MODEL, seconds[0])
+    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
+    if ending == _NOT_APPLICABLE:
+        return None
+    if rounds:
+        problem.remember_at_rest(p, f, values)
+        problem.remember_stability(p, float(value), mode)
+    return Rounds(lower, p, float(violation), float(distance), float(value), int(rounds), ENDINGS[ending])
+
+
+@numba.njit(cache=True)
+def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps,
+                          max_rounds, tol, kkt_tol, near, change, p0, rate, multiplier, bend, rest, lengths,
+                          forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf, dgbtrs,
+                          hessian_args, eigen_args, scale, free_index, stiffening_args, clock, clock_id,
+                          seconds):  # pragma: no cover - compiled
+    """(ending, rounds, lower bounds, p, its eigenvalue and mode, f and dc/dp values at p, |c|_inf,
+    KKT distance) of stabilization_rounds: floors_loop's turns, each round _checked_floors and the
+    floored problem's confirmed start (confirmed_optimum, from the least rest change ``change``),
+    its stability the landing's where it is the landing (the memo the Python path reads), else
+    measured. seconds[0] and [1] accumulate model evaluation and linear algebra."""
+    empty = np.empty(0)
+    timed = seconds[:2]
+    unmeasured = (False, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)  # the stability: below
+    rounds, f, values, violation, distance = 0, empty, empty, np.nan, np.nan
+    violations = np.empty(2)  # confirmed_optimum's |c|_inf at p0 (unused here) and at its p
+    while True:
+        if value >= margin:
+            return _STABLE, rounds, lower, p, value, mode, f, values, violation, distance
+        if rounds == max_rounds:
+            return _MAX_ROUNDS, rounds, lower, p, value, mode, f, values, violation, distance
+        outcome, floors, landing, landing_value, landing_mode = _checked_floors(
+            p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps, tol, change, p0,
+            rate, multiplier, bend, rest, lengths, forces_args, free, row_scale, hessian_args, eigen_args, scale,
+            free_index, stiffening_args, clock, clock_id, timed)
+        if outcome == _NOT_APPLICABLE:
+            return _NOT_APPLICABLE, rounds, lower, p, value, mode, f, values, violation, distance
+        if outcome == _NO_ROOM:
+            return _NO_ROOM, rounds, lower, p, value, mode, f, values, violation, distance
+        lower = np.minimum(np.maximum(lower, floors), upper)  # Problem.with_lower_bounds
+        solved, _, p, _, _, f, values, distance, _, _ = confirmed_optimum(
+            forces_args, jacobian_args, free, row_scale, indptr, indices, p0, weights, lower, upper, rate,
+            multiplier, bend, rest, lengths, position, change, empty, empty, dgbtrf, dgbtrs, near, clock, clock_id,
+            unmeasured, seconds, violations)
+        if solved != CONFIRMED:
+            return _NOT_APPLICABLE, rounds, lower, p, value, mode, f, values, violation, distance
+        violation = violations[1]
+        if not (violation <= tol and distance <= kkt_tol):  # asc's outer loop would go on from here
+            return _NOT_APPLICABLE, rounds, lower, p, value, mode, f, values, violation, distance
+        if landing_mode.size and np.array_equal(p, landing):
+            value, mode = landing_value, landing_mode
+        else:
+            value, mode = at_rest.stability(p, hessian_args, eigen_args, scale, free_index, clock, clock_id, timed)
+        rounds += 1

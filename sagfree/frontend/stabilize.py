@@ -27,6 +27,11 @@ make its optimum stable. They are found by a cutting-plane loop on the bare prob
    strand held by its root alone the step and its checks are one compiled call (floor_steps);
 3. solve the floored problem from the solver's own start again, and repeat.
 
+For a strand held by its root alone, solved by asc, the whole loop is one compiled call
+(floor_steps.stabilization_rounds: each re-solve is asc's confirmed start), with the Python loop's
+floors, solutions and messages bit for bit; where a re-solve needs asc's outer loop, the loop runs
+in Python (``floors_loop``).
+
 The floors of a strand must not depend on the solver, or solvers would be compared on different
 problems: the floored problems are nonconvex like the bare one, and two solvers' intermediate optima
 (hence their floors) can differ. So the floors are always found by the loop with ``asc`` (fast; its
@@ -42,21 +47,22 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import NamedTuple
 
 import numpy as np
 
-from sagfree.contract.optimality import TOL
+from sagfree.contract.optimality import KKT_TOL, TOL
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
 from sagfree.linalg import timing
 from sagfree.solvers import solve_alm
-from sagfree.solvers.alm import linear_start
+from sagfree.solvers.alm import converged_message, linear_start
 from sagfree.solvers.statics_start import square_rest_system
 
 from .best_effort import with_least_sag
-from .floor_steps import checked_floors, raised_floors
+from .floor_steps import checked_floors, raised_floors, stabilization_rounds
 
 #: Rounds of floors raised and solves repeated before giving up (status max_iterations).
 MAX_ROUNDS = 10
@@ -115,13 +121,29 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
                        time.perf_counter() - clock - setup, history, floored.layout.lower.copy(), setup_time=setup)
 
 
+class LastSolve(NamedTuple):
+    """What floors_loop reads of its last solve where the rounds ran compiled (no Result is made
+    for it): a Result's fields of the same names."""
+    p: np.ndarray
+    solver: str
+    status: str
+    message: str
+    iterations: dict
+    history: list
+    objective: float
+
+
 def floors_loop(function, problem: Problem, options: dict, result: Result | None = None):
-    """(floored problem, its last Result, rounds, verdict) of the loop of the module docstring with
+    """(floored problem, its last solve, rounds, verdict) of the loop of the module docstring with
     ``function``, from ``result`` (its solution of the bare problem; solved here if None). The last
-    Result's iterations are those of the loop's own solves. verdict: None when the last solution is
-    stable, else (status, message)."""
+    solve (a Result, or a LastSolve where the rounds ran as one compiled call: _compiled_rounds) has
+    the iterations of the loop's own solves. verdict: None when the last solution is stable, else
+    (status, message)."""
     result = function(problem, **options) if result is None else result
     stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    compiled = _compiled_rounds(function, problem, options, result, stiffness)
+    if compiled is not None:
+        return compiled
     margin = problem.stability_margin
     current, rounds, counts = problem, 0, {}
     while True:
@@ -133,15 +155,11 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
             verdict = (result.status, f"stabilization round {rounds}: {result.message}")
             break
         if rounds == MAX_ROUNDS:
-            verdict = ("max_iterations", f"{result.message}; not stable after {MAX_ROUNDS} rounds of stiffness floors: smallest "
-                       f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2")
+            verdict = _verdict("max rounds", result.message, value, margin)
             break
         floors = _next_floors(current, result.p, value, mode, stiffness)
         if floors is None:
-            verdict = ("infeasible", f"{result.message}; cannot be stabilized inside the boxes: smallest "
-                       f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2 and every stiffness multiplier that "
-                       "would raise it is at its upper bound; relax the stiffness bounds (bounds={'bend_stiffness': "
-                       "(1, 1000)}; command line: --bound bend_stiffness=1,1000)")
+            verdict = _verdict("no room", result.message, value, margin)
             break
         current = current.with_lower_bounds(floors)
         result = function(current, **options)
@@ -150,14 +168,55 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
     return current, dataclasses.replace(result, iterations=counts), rounds, verdict
 
 
+def _compiled_rounds(function, problem: Problem, options: dict, result: Result, stiffness: np.ndarray):
+    """floors_loop's outcome from one compiled call (floor_steps.stabilization_rounds) where asc's
+    solves are its confirmed starts (a strand held by its root alone, asc's own start), else None.
+    The same floors, solutions, messages and counts as the Python loop (whose confirmed re-solves
+    count no iteration), without its intermediate Results and floored Problems."""
+    if (function is not solve_alm or result.status != "converged" or options.get("p_start") is not None
+            or options.get("start", "auto") != "auto"):
+        return None
+    value, mode = problem.stability(result.p, vector=True)
+    margin = problem.stability_margin
+    tol, kkt_tol = options.get("tol", TOL), options.get("kkt_tol", KKT_TOL)
+    found = stabilization_rounds(problem, result.p, value, mode, stiffness, margin, OVERSHOOT, RELEVANT, FLOOR_STEPS,
+                                 MAX_ROUNDS, tol, kkt_tol)
+    if found is None:
+        return None
+    last = LastSolve(result.p, result.solver, result.status, result.message, {}, result.history, result.objective)
+    if found.rounds:  # the last re-solve, as solve_alm reports a confirmed start
+        p, violation = found.p, found.violation
+        message = converged_message(violation, found.distance, tol, kkt_tol, 0, 0)
+        history = [float(np.abs(problem.residual(problem.p0)).max(initial=0.0)), violation]  # alm._start_violation
+        last = LastSolve(p, result.solver, "converged", message, dict.fromkeys(result.iterations, 0), history,
+                         problem.objective(p))
+    verdict = None if found.ending == "stable" else _verdict(found.ending, last.message, found.value, margin)
+    return problem.with_lower_bounds(found.lower), last, found.rounds, verdict
+
+
+def _verdict(ending: str, message: str, value: float, margin: float) -> tuple[str, str]:
+    """(status, message) of a loop that ended unstable, after the last solve's ``message``: with no
+    multiplier left to raise ("no room") or after MAX_ROUNDS rounds ("max rounds")."""
+    if ending == "max rounds":
+        return ("max_iterations", f"{message}; not stable after {MAX_ROUNDS} rounds of stiffness floors: smallest "
+                f"eigenvalue {value:.3g} s^-2 < margin {margin:.3g} s^-2")
+    return ("infeasible", f"{message}; cannot be stabilized inside the boxes: smallest eigenvalue {value:.3g} s^-2 "
+            f"< margin {margin:.3g} s^-2 and every stiffness multiplier that would raise it is at its upper bound; "
+            "relax the stiffness bounds (bounds={'bend_stiffness': (1, 1000)}; command line: --bound "
+            "bend_stiffness=1,1000)")
+
+
 def warm_floor_steps(problem: Problem) -> None:
     """One round of floors from asc's optimum of ``problem``, whatever its stability, its floors
-    thrown away: the warm-up's way (frontend.warm) to compile or load the round's kernels in this
-    process before anything is timed."""
+    thrown away, and the compiled loop of rounds from there: the warm-up's way (frontend.warm) to
+    compile or load their kernels in this process before anything is timed."""
     result = solve_alm(problem)
     if result.status == "converged":
         value, mode = problem.stability(result.p, vector=True)
-        _next_floors(problem, result.p, value, mode, problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK)))
+        stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+        _next_floors(problem, result.p, value, mode, stiffness)
+        stabilization_rounds(problem, result.p, value, mode, stiffness, problem.stability_margin, OVERSHOOT,
+                             RELEVANT, FLOOR_STEPS, 1, TOL, KKT_TOL)
 
 
 def _next_floors(problem: Problem, p: np.ndarray, value: float, mode: np.ndarray, stiffness: np.ndarray):
