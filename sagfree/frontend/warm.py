@@ -16,8 +16,8 @@ prepared on its own: the QPs' interior-point fallback, the constraints' curvatur
 the stabilization's compiled round (the warm-up strand is stable). On a machine whose caches do not
 hold this code's kernels yet, the first warm-up runs once in a child interpreter first (priming), so
 that the process that solves, and the workers it forks, load the kernels instead of carrying a compile.
-Each warm-up ends by releasing the LLVM IR numba keeps for the entry kernels it loaded
-(``sagfree.kernel_memory``): ~30 MB of the ~115 MB the warm-up adds to each process.
+Each warm-up ends by releasing the parsed LLVM IR numba keeps for the kernels it loaded
+(``sagfree.kernel_memory``): a third of what the warm-up adds to each process.
 """
 from __future__ import annotations
 
@@ -152,7 +152,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     _quietly(interior_point.compile_kernels)
     entry = solver_entry(solver)
     _quietly(_solve_warm_strand, entry, solver_options, problem_options or {})
-    release_linking_ir()  # the loaded entry kernels' IR, which only compiles of their callers would read
+    release_linking_ir()  # the loaded kernels' IR, which only compiles of their callers read
     return time.perf_counter() - start
 
 
