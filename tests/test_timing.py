@@ -102,3 +102,39 @@ def test_the_warm_up_prepares_what_rare_branches_run(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     signatures, hessians, round_steps, rounds = map(int, run.stdout.strip().splitlines()[-1].split())
     assert signatures >= 1 and hessians >= 1 and round_steps >= 1 and rounds >= 1
+
+
+FIRST_CHECKS = """
+import json
+import numba.core.dispatcher as dispatcher
+import sagfree
+from sagfree.formulation import compiled
+from sagfree.frontend import batch
+strands = sagfree.scenes.groom(2, 30, seed=2)
+parameters = [result.p for result in sagfree.optimize(strands, jobs=1)]
+loads, during = [], []
+for owner, name in ((dispatcher.Dispatcher, "compile"), (compiled, "compile_library")):
+    def counting(*args, _original=getattr(owner, name), _name=name):
+        loads.append(_name)
+        return _original(*args)
+    setattr(owner, name, counting)
+timed = batch.sag_check
+def check(*args, **kwargs):
+    before = len(loads)
+    result = timed(*args, **kwargs)
+    during.append(loads[before:])
+    return result
+batch.sag_check = check
+checks = sagfree.frontend.batch.simulate_strands(strands, parameters, jobs=1)
+print(json.dumps({"during": during, "warm": len(loads), "held": [c.holds for c in checks]}))
+"""
+
+
+def test_the_first_forward_check_loads_nothing_in_its_time(tmp_path):
+    """The first strand's SagCheck.time held the loading of the check's kernels (band
+    factorizations, stencils; a third of a 100-vertex check): warm_check runs before, untimed."""
+    run = subprocess.run([sys.executable, "-c", FIRST_CHECKS], capture_output=True, text=True, timeout=600,
+                         cwd=tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = __import__("json").loads(run.stdout.strip().splitlines()[-1])
+    assert report["during"] == [[], []] and report["warm"] >= 1 and report["held"] == [True, True]

@@ -16,8 +16,9 @@ prepared on its own: the QPs' interior-point fallback, the constraints' curvatur
 the stabilization's compiled round (the warm-up strand is stable). On a machine whose caches do not
 hold this code's kernels yet, the first warm-up runs once in a child interpreter first (priming), so
 that the process that solves, and the workers it forks, load the kernels instead of carrying a compile.
-Each warm-up ends by releasing the parsed LLVM IR numba keeps for the kernels it loaded
-(``sagfree.kernel_memory``): a third of what the warm-up adds to each process.
+The forward check has its own (``warm_check``), which the batch's ``simulate_strands`` runs before
+its first timed SagCheck. Each warm-up ends by releasing the parsed LLVM IR numba keeps for the
+kernels it loaded (``sagfree.kernel_memory``): a third of what the warm-up adds to each process.
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ import numpy as np
 
 from sagfree.formulation.bodies import parse_body
 from sagfree.formulation.problem import Problem
+from sagfree.formulation.simulation import sag_check
 from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
 from sagfree.solvers import interior_point
@@ -36,7 +38,7 @@ from .priming import primed_in_child
 from .stabilize import solve_stabilized, warm_floor_steps
 from .table import solver_entry
 
-#: (solver, model options) already warm in this process
+#: (solver, model options) already warm in this process, and ("check", model options) for warm_check
 _WARM: set = set()
 #: the options that change what is compiled or loaded (the others only change numbers)
 _MODEL_OPTIONS = ("curvature", "energies", "stiffness", "couple_twist", "optimize", "stabilize", "friction")
@@ -154,6 +156,27 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     _quietly(_solve_warm_strand, entry, solver_options, problem_options or {})
     release_linking_ir()  # the loaded kernels' IR, which only compiles of their callers read
     return time.perf_counter() - start
+
+
+def warm_check(problem_options: dict | None = None) -> float:
+    """The forward check (formulation.simulation.sag_check: time steps, static solve, push) run once
+    per process and model options on the warm-up strand at p0, untimed, so that the first checked
+    strand's SagCheck.time holds no kernel loading (the band factorizations and stencils: a third
+    of a 100-vertex strand's check); returns the seconds it took (0 if already warm). Never
+    raises: a strand the real check cannot run reports its own error."""
+    key = _key("check", problem_options)
+    if key in _WARM:
+        return 0.0
+    start = time.perf_counter()
+    _WARM.add(key)
+    _quietly(_check_warm_strand, problem_options or {})
+    release_linking_ir()
+    return time.perf_counter() - start
+
+
+def _check_warm_strand(problem_options: dict) -> None:
+    problem = _warm_strand(problem_options)
+    sag_check(problem, problem.p0, steps=2)
 
 
 def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict) -> None:
