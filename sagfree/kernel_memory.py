@@ -19,6 +19,7 @@ import functools
 import sys
 
 from llvmlite import binding as llvm
+from numba.core.compiler_lock import global_compiler_lock
 from numba.core.dispatcher import Dispatcher
 
 #: numba's CPUCodeLibrary attribute holding a loaded kernel's IR for linking, and its method returning it
@@ -27,9 +28,11 @@ _LINKING_IR, _LINKING_METHOD = "_shared_module", "_get_module_for_linking"
 
 def release_linking_ir(package: str = "sagfree") -> int:
     """Keep the linking IR of every loaded overload of ``package``'s kernels as bitcode (module
-    docstring), and hand the freed heap back to the system; returns how many overloads released theirs."""
-    released = sum(_released(result.library) for kernel in package_kernels(package)
-                   for result in list(kernel.overloads.values()) if hasattr(result, "library"))
+    docstring), and hand the freed heap back to the system; returns how many overloads released theirs.
+    Under numba's compiler lock: no compile in another thread links a library while it changes."""
+    with global_compiler_lock:
+        released = sum(_released(result.library) for kernel in package_kernels(package)
+                       for result in list(kernel.overloads.values()) if hasattr(result, "library"))
     if released:
         _trim_heap()
     return released
