@@ -57,14 +57,11 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
     and dc/dp at p0 and at p, the least rest change and the square-system verdict, and where the
     start is confirmed (|c|_inf <= tol, distance <= kkt_tol) the stability at p that its Result
     reports."""
-    kernels, stability = problem.at_rest_kernels, problem.stability_kernels
-    if kernels is None or stability is None or timing.CLOCK is None or not applies(problem):
+    kernels = compiled_start_inputs(problem)
+    if kernels is None:
         return None
-    forces_args, jacobian_args, free, row_scale, structure = kernels
-    indptr, indices = structure[0], structure[1]
-    position = band_order(indptr, indices, free.size)
-    if position is None:
-        return None
+    forces_args, jacobian_args, free, row_scale, indptr, indices, position = kernels
+    stability = problem.stability_kernels
     known = problem.remembered("least rest change")  # by a twin: the stabilization's floored problems
     if known is not None and not problem.remembered("square rest system"):
         return None  # the saddle system's least change: statics_start does not apply
@@ -89,6 +86,21 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
         return ConfirmedStart(p, float(distance), float(seconds[2]), float(violations[0]),
                               float(violations[1]))
     return None
+
+
+def compiled_start_inputs(problem: Problem):
+    """(forces arguments, Jacobian arguments, free index, free rows' scales, dc/dp's CSC indptr and
+    indices, its band order) for a compiled confirmed start of ``problem``, or None where there is
+    none: stencils or stability not compiled, no process clock, statics_start does not apply, or
+    the saddle system is not a band (Problem.at_rest_kernels, band_order)."""
+    kernels = problem.at_rest_kernels
+    if kernels is None or problem.stability_kernels is None or timing.CLOCK is None or not applies(problem):
+        return None
+    forces_args, jacobian_args, free, row_scale, structure = kernels
+    position = band_order(structure[0], structure[1], free.size)
+    if position is None:
+        return None
+    return forces_args, jacobian_args, free, row_scale, structure[0], structure[1], position
 
 
 #: _confirmed's outcomes: the start and its distance; no optimum (a singular rest system, or a box

@@ -35,8 +35,7 @@ from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.pairwise import pairwise_sum
-from sagfree.linalg.saddle import band_order
-from sagfree.solvers.confirmed_start import CONFIRMED, confirmed_optimum
+from sagfree.solvers.confirmed_start import CONFIRMED, compiled_start_inputs, confirmed_optimum
 from sagfree.solvers.gauss_newton import at_rest_residual
 from sagfree.solvers.statics_start import applies, statics_indices, statics_optimum
 
@@ -171,16 +170,12 @@ def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np
     not a band, a re-solve that is not confirmed at once): the caller then runs the loop in Python
     from the start. The last solution's forces, dc/dp and eigenpair go into the Problem's memos,
     where its Result reads them."""
-    kernels, stability, stiffening = problem.at_rest_kernels, problem.stability_kernels, problem.stiffening_kernel
+    kernels, stiffening = compiled_start_inputs(problem), problem.stiffening_kernel
     change = problem.remembered("least rest change")
-    if (kernels is None or stability is None or stiffening is None or timing.CLOCK is None or change is None
-            or not problem.remembered("square rest system") or not applies(problem)):
+    if kernels is None or stiffening is None or change is None or not problem.remembered("square rest system"):
         return None
-    forces_args, jacobian_args, free, row_scale, structure = kernels
-    indptr, indices = structure[0], structure[1]
-    position = band_order(indptr, indices, free.size)
-    if position is None:
-        return None
+    forces_args, jacobian_args, free, row_scale, indptr, indices, position = kernels
+    stability = problem.stability_kernels
     layout = problem.layout
     seconds = np.zeros(3)
     ending, rounds, lower, p, value, mode, f, values, violation, distance = _stabilization_rounds(
