@@ -2,9 +2,9 @@
 
 A kernel numba loads from its cache keeps, next to its machine code, the LLVM IR of itself and of
 every kernel it calls (``CPUCodeLibrary._shared_module``), parsed into memory, because a later compile
-of a kernel that calls this one links that IR in. Parsed IR takes ~10x its bitcode: each kernel that
-calls the model (the Gauss-Newton loop, the confirmed start, the stabilization's rounds) holds 12-19
-MB of it per process, where its machine code takes 2-5 MB, and compiles after a warm-up are rare.
+of a kernel that calls this one links that IR in. Parsed IR takes ~10x its bitcode: a kernel that
+calls the model (the Gauss-Newton loop, the confirmed start, the stabilization's rounds) held several
+times its machine code in it, in every process, for compiles that after a warm-up rarely come.
 
 ``release_linking_ir`` replaces each loaded kernel's parsed IR by its bitcode bytes and hands the
 kernel a ``_get_module_for_linking`` that parses them again, for the compile that links it. Its
