@@ -219,7 +219,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             confirmed = confirmed_start(problem, tol, kkt_tol) if start == "auto" else None
             linear = confirmed.p if confirmed is not None else linear_start(problem, optimal=start == "auto")
             if linear is not None:
-                p_start, history = linear, [_start_violation(problem, confirmed)]
+                p_start, history = linear, [start_violation(problem, confirmed)]
     if confirmed is not None and confirmed.violation <= tol and confirmed.distance <= kkt_tol:
         # the start is the optimum, confirmed (the common case): its p is inside the box already
         p, measured = confirmed.p, confirmed.stability_seconds
@@ -601,9 +601,10 @@ def _crawls(progress: list[tuple[float, float]]) -> bool:
     return violation > CRAWL_DROP * old_violation and optimality > CRAWL_DROP * old_optimality
 
 
-def _start_violation(problem: Problem, confirmed) -> float:
-    """|c(p0)|_inf, the first entry of the history of a solve from the linear start: measured by
-    ``confirmed`` (a solvers.confirmed_start.ConfirmedStart or None) where it evaluated p0."""
+def start_violation(problem: Problem, confirmed=None) -> float:
+    """|c(p0)|_inf, the first entry of the history of a solve from the linear start (also of the
+    stabilization's compiled re-solves, frontend.stabilize): measured by ``confirmed`` (a
+    solvers.confirmed_start.ConfirmedStart or None) where it evaluated p0."""
     if confirmed is not None and not np.isnan(confirmed.start_violation):
         return confirmed.start_violation
     return float(np.abs(problem.residual(problem.p0)).max(initial=0.0))

@@ -26,10 +26,10 @@ whole loop back to Python, which starts it again.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
-
-from typing import NamedTuple
 
 from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem

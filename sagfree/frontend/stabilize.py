@@ -58,7 +58,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
 from sagfree.linalg import timing
 from sagfree.solvers import solve_alm
-from sagfree.solvers.alm import converged_message, linear_start
+from sagfree.solvers.alm import converged_message, linear_start, start_violation
 from sagfree.solvers.statics_start import square_rest_system
 
 from .best_effort import with_least_sag
@@ -187,7 +187,7 @@ def _compiled_rounds(function, problem: Problem, options: dict, result: Result, 
     if found.rounds:  # the last re-solve, as solve_alm reports a confirmed start
         p, violation = found.p, found.violation
         message = converged_message(violation, found.distance, tol, kkt_tol, 0, 0)
-        history = [float(np.abs(problem.residual(problem.p0)).max(initial=0.0)), violation]  # alm._start_violation
+        history = [start_violation(problem), violation]
         last = LastSolve(p, result.solver, "converged", message, dict.fromkeys(result.iterations, 0), history,
                          problem.objective(p))
     verdict = None if found.ending == "stable" else _verdict(found.ending, last.message, found.value, margin)
