@@ -1,6 +1,7 @@
 """Long hair the boxes cannot balance: the default groom scaled 5x and 10x (DESIGN section 4, best effort).
 
-    python benchmarks/bench_long_hair.py [--scales 5,10] [--strands 100] [--jobs N]
+    python benchmarks/bench_long_hair.py [--scales 5,10 (or "": none)] [--strands 100] [--jobs N]
+                                         [--sizes 50,100,200,400,1000,2000]
 
 Every strand of the default groom is scaled about its root (same radius and material), solved with
 ``asc`` (element stiffness, default boxes, stabilization on; an infeasible strand gets the least
@@ -16,6 +17,11 @@ hold without deforming, beta_max E I THETA / L (the bend multiplier at its upper
 whole-strand curvature budget THETA spread along L), over the groomed root moment of gravity
 |sum_i (x_i - x_0) x m_i g|. Below 1 no parameters inside the boxes balance the strand, and the sag
 cannot stay small: it scales like 1/L^3 with the length.
+
+The second table is the best effort's growth with strand size: the default groom's strand 5 at 5
+times its length, resampled to each of ``--sizes`` vertices (one core, after a warm-up solve): the
+wall time, per vertex (flat = linear growth), the least-sag evaluations, the static sag over naive's
+and the process's peak resident memory so far.
 """
 from __future__ import annotations
 
@@ -26,6 +32,7 @@ from collections import Counter
 import numpy as np
 
 import sagfree
+from sagfree.scenes.synthetic import resample
 from sagfree.formulation.parameters import BUDGETS, STIFFNESS_BOX
 from sagfree.formulation.simulation import equilibrium
 from sagfree.frontend.batch import map_strands
@@ -70,11 +77,13 @@ def main() -> None:
     parser.add_argument("--scales", default="5,10")
     parser.add_argument("--strands", type=int, default=100)
     parser.add_argument("--jobs", type=int, default=None)
+    parser.add_argument("--sizes", default="50,100,200,400,1000,2000")
     args = parser.parse_args()
     groom = sagfree.scenes.default_groom()[: args.strands]
-    print("scale  lengths (cm)   asc statuses                     time s  sag < naive  "
-          "mean sag/naive  mean sag / mean naive  mean sag/penalty-gn  stable  worst sag/naive  box holds")
-    for factor in (float(s) for s in args.scales.split(",")):
+    if args.scales:
+        print("scale  lengths (cm)   asc statuses                     time s  sag < naive  "
+              "mean sag/naive  mean sag / mean naive  mean sag/penalty-gn  stable  worst sag/naive  box holds")
+    for factor in (float(s) for s in args.scales.split(",") if s):
         strands = [scaled(s, factor) for s in groom]
         start = time.perf_counter()
         ours = sagfree.optimize(strands, jobs=args.jobs)
@@ -91,6 +100,30 @@ def main() -> None:
               f"{np.mean(asc[both]) / np.mean(naive[both]):21.3f}  {np.nanmean(asc / pgn):19.3f}  "
               f"{sum(r.stable for r in ours)}/{len(ours)}  {np.max(asc[both] / naive[both]):15.3f}  "
               f"{np.median([box_moment_fraction(s) for s in strands]):9.3f}")
+    if args.sizes:
+        size_table([int(n) for n in args.sizes.split(",")])
+
+
+def size_table(sizes: list[int]) -> None:
+    """The second table of the module docstring."""
+    import resource
+
+    long = scaled(sagfree.scenes.default_groom()[5], 5.0)
+    print(f"\n{'vertices':>8} {'status':>11} {'wall s':>8} {'us/vertex':>10} {'least-sag evals':>16} "
+          f"{'sag/naive':>10} {'stable':>6} {'peak MB':>8}")
+    sagfree.optimize([sagfree.Strand(resample(long.points, 30), radius=long.radius)], jobs=1)  # warm
+    for n in sizes:
+        strand = sagfree.Strand(resample(long.points, n), radius=long.radius, youngs_modulus=long.youngs_modulus,
+                                shear_modulus=long.shear_modulus, density=long.density)
+        start = time.perf_counter()
+        (result,) = sagfree.optimize([strand], jobs=1)
+        wall = time.perf_counter() - start
+        naive = equilibrium(sagfree.Problem(strand), sagfree.Problem(strand).p0)
+        sag = result.static_sag if result.static_sag is not None else float("nan")  # converged: rests at q*
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"{n:8d} {result.status:>11} {wall:8.2f} {1e6 * wall / n:10.0f} "
+              f"{result.iterations.get('least_sag', 0):16d} {sag / naive.relative_sag:10.3f} "
+              f"{str(result.stable):>6} {peak:8.0f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -12,10 +12,17 @@ Jacobian follows from the equilibrium itself: f(q_s, p) = 0 gives
 
     dq_s/dp = K^-1 D dc/dp                                                  (K d^2E/dq^2 at q_s)
 
-with c = D^-1 S f at q_s (``Problem.strand_jacobian(p, q, frames)``), one banded Cholesky of K and
-a solve per parameter. scipy's trust-region reflective least squares (``least_squares``, method
-"trf", which keeps every iterate inside the box; LSMR for its subproblems, where the exact solver's
-dense SVD grows like the cube of the size) takes the steps; each evaluation continues the
+with c = D^-1 S f at q_s (``Problem.strand_jacobian(p, q, frames)``): one banded Cholesky of K per
+Jacobian. scipy's trust-region reflective least squares (``least_squares``, method "trf", which
+keeps every iterate inside the box; LSMR for its subproblems, where the exact solver's dense SVD
+grows like the cube of the size) takes the steps, in the variables' scales of the Jacobian's column
+norms (x_scale="jac"). The dense Jacobian (3n x parameters) grows like n^2, and so do its products
+in LSMR: above DENSE_BYTES (~670 vertices; at 2000, by their sizes, it and its intermediates would
+take ~2 GB) it is never formed but applied as an operator, each product with it or its transpose
+one pair of band triangular solves, O(n) (``StaticSag.jacobian``), LSMR capped at LSMR_ITERATIONS
+per step, and the scales are the column norms at the start, taken once (3n solves,
+``StaticSag.column_norms``: scipy updates "jac" scales only from a matrix; the operator at every
+size, so scaled, sagged more at 400 vertices, benchmarks/RESULTS.md). Each evaluation continues the
 equilibrium from the previous one (``equilibrium(start=...)``), so p moves along one branch of
 equilibria; where the continuation fails (CONTINUATION_STEPS Newton steps), the step was too long
 for it and the trust region shrinks. (A restart from q* costs 10-100 times more: the overdamped
@@ -38,11 +45,13 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 import scipy.optimize
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator
 
 from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import Equilibrium, equilibrium
-from sagfree.linalg.cholesky import band_cholesky
+from sagfree.linalg.cholesky import band_cholesky, band_solve
 
 #: Model evaluations (static solves) the minimization may take: enough for the large early gains,
 #: bounded so that a groom of long hair costs seconds per strand.
@@ -51,6 +60,13 @@ MAX_EVALUATIONS = 60
 VERIFIED = 3
 #: Newton steps of a continued static solve before the step counts as too long.
 CONTINUATION_STEPS = 100
+#: Largest dense Jacobian (bytes) the minimization takes; above it (~670 vertices) the operator.
+DENSE_BYTES = 64 * 2**20
+#: LSMR iterations per trust-region step with the operator (scipy's default, min(3n, parameters),
+#: grows with the strand; the step only needs a direction better than the gradient's).
+LSMR_ITERATIONS = 30
+#: Right-hand sides per block of StaticSag.column_norms' solves.
+NORM_BLOCK = 256
 
 
 @dataclass
@@ -97,8 +113,67 @@ class StaticSag:
             self.visited.append((0.5 * float(residuals @ residuals), p.copy()))
         return residuals
 
-    def jacobian(self, p: np.ndarray) -> np.ndarray:
-        """d residuals / dp: dx/dp = [K^-1 D dc/dp] on the positions, at the equilibrium of p."""
+    def jacobian(self, p: np.ndarray) -> LinearOperator:
+        """d residuals / dp = W P K^-1 B at the equilibrium of p (W: the residuals' weights, P: the
+        position rows, K = d^2E/dq^2 on the free DOFs, B = D dc/dp there) as an operator: a product
+        with it or its transpose is one banded Cholesky solve and one sparse product, O(n)
+        (``dense_jacobian`` forms the matrix, 3n x parameters)."""
+        factor, scaled = self._linearization(p)
+        problem = self.problem
+        free, size = problem.free_index, problem.q_star.size
+        positions = dofs.position_index(problem.n_vertices).ravel()
+        weight = np.repeat(self.weight[:, 0], 3)
+        transposed = scaled.T.tocsr()
+
+        def product(v):
+            moved = np.zeros(size)
+            moved[free] = band_solve(factor, scaled @ np.ravel(v))
+            return weight * moved[positions]
+
+        def transposed_product(u):
+            pulled = np.zeros(size)
+            pulled[positions] = weight * np.ravel(u)
+            return transposed @ band_solve(factor, pulled[free])
+
+        return LinearOperator((positions.size, p.size), matvec=product, rmatvec=transposed_product, dtype=float)
+
+    def dense_jacobian(self, p: np.ndarray) -> np.ndarray:
+        """``jacobian(p)`` as a dense matrix: K^-1 applied to every column of B at once (LAPACK's
+        banded Cholesky solve), for strands whose matrix fits DENSE_BYTES."""
+        factor, scaled = self._linearization(p)
+        problem = self.problem
+        moved = np.zeros((problem.q_star.size, p.size))
+        moved[problem.free_index] = scipy.linalg.cho_solve_banded((np.ascontiguousarray(factor.T), True),
+                                                                  scaled.toarray())
+        positions = moved[dofs.position_index(problem.n_vertices)]       # (n, 3, parameters)
+        return (self.weight[:, :, None] * positions).reshape(-1, p.size)
+
+    def column_norms(self, p: np.ndarray) -> np.ndarray:
+        """|jacobian(p)[:, j]|_2 for every parameter j: the rows of W P K^-1 B, solved NORM_BLOCK
+        at a time (K is symmetric: B^T K^-1 P^T W), their squares summed per column. 3n solves
+        once per minimization (the trust region's variable scales), in O(n NORM_BLOCK) memory."""
+        factor, scaled = self._linearization(p)
+        problem = self.problem
+        free, size = problem.free_index, problem.q_star.size
+        row_of = np.full(size, -1)
+        row_of[free] = np.arange(free.size)
+        rows = row_of[dofs.position_index(problem.n_vertices).ravel()]
+        weight = np.repeat(self.weight[:, 0], 3)
+        moving = np.flatnonzero(rows >= 0)  # a prescribed position has no sensitivity
+        lower = (np.ascontiguousarray(factor.T), True)
+        squares = np.zeros(p.size)
+        for start in range(0, moving.size, NORM_BLOCK):
+            block = moving[start:start + NORM_BLOCK]
+            unit = np.zeros((free.size, block.size))
+            unit[rows[block], np.arange(block.size)] = weight[block]
+            rows_of_jacobian = scaled.T @ scipy.linalg.cho_solve_banded(lower, unit)  # (parameters, block)
+            squares += np.einsum("jk,jk->j", rows_of_jacobian, rows_of_jacobian)
+        return np.sqrt(squares)
+
+    def _linearization(self, p: np.ndarray):
+        """(Cholesky factor of K, B) at the equilibrium of p (continued there if it is not the last
+        one): K the free block of the static Hessian, shifted by the mass metric where E has a
+        saddle (as Newton's damping does); B the rows of D dc/dp on the free DOFs (CSR)."""
         problem = self.problem
         if self.at is None or not np.array_equal(p, self.at):
             self._settle(p)
@@ -106,16 +181,13 @@ class StaticSag:
         band = problem.free_band(problem.static_hessian_band(p, state.q, state.frames))
         factor, shift = band_cholesky(band), 0.0
         masses = problem.dof_masses[free]
-        while factor is None:  # a saddle of E: shift by the mass metric, as Newton's damping does
+        while factor is None:
             shift = max(4.0 * shift, 1.0)
             shifted = band.copy()
             shifted[0] += shift * masses
             factor = band_cholesky(shifted)
-        scaled = problem.strand_jacobian(p, state.q, state.frames).tocsc().toarray() * problem.row_scale[free, None]
-        moved = np.zeros((problem.q_star.size, p.size))
-        moved[free] = scipy.linalg.cho_solve_banded((np.ascontiguousarray(factor.T), True), scaled)
-        positions = moved[dofs.position_index(problem.n_vertices)]       # (n, 3, parameters)
-        return (self.weight[:, :, None] * positions).reshape(-1, p.size)
+        jacobian = problem.strand_jacobian(p, state.q, state.frames).tocsc()
+        return factor, (sp.diags(problem.row_scale[free]) @ jacobian).tocsr()
 
 
 def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUATIONS) -> LeastSag:
@@ -124,9 +196,15 @@ def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUA
     p = np.clip(problem.check_parameters(p), lower, upper)
     start = equilibrium(problem, p)
     model = StaticSag(problem, start if start.converged else equilibrium(problem, problem.p0))
+    if 3 * problem.n_vertices * p.size * 8 <= DENSE_BYTES:
+        jacobian, scales, options = model.dense_jacobian, "jac", {}
+    else:  # the operator, in the scales of its column norms at the start (x_scale="jac" needs a matrix)
+        norms = model.column_norms(p)
+        jacobian, scales = model.jacobian, 1.0 / np.where(norms > 0, norms, 1.0)
+        options = {"maxiter": LSMR_ITERATIONS}
     try:
-        run = scipy.optimize.least_squares(model.residuals, p, jac=model.jacobian, bounds=(lower, upper),
-                                           method="trf", x_scale="jac", tr_solver="lsmr",
+        run = scipy.optimize.least_squares(model.residuals, p, jac=jacobian, bounds=(lower, upper), method="trf",
+                                           x_scale=scales, tr_solver="lsmr", tr_options=options,
                                            max_nfev=max_evaluations)
         evaluations = int(run.nfev)
     except ValueError:  # no equilibrium found at the start itself ("residuals are not finite")

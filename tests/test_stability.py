@@ -197,6 +197,24 @@ def test_static_sag_jacobian_matches_finite_differences(long_strand):
     assert np.linalg.norm(jacobian @ direction - difference) <= 1e-5 * np.linalg.norm(difference)
 
 
+def test_static_sag_operator_transpose_and_column_norms(long_strand):
+    """The least-sag Jacobian as an operator (long strands: never a dense 3n x parameters matrix)
+    applies the dense Jacobian, its transpose product is the adjoint of its product, and the column
+    norms that scale the trust region are the dense matrix's."""
+    problem = sagfree.Problem(long_strand)
+    p = stiffest(problem, problem.p0)
+    model = StaticSag(problem, equilibrium(problem, p))
+    model.residuals(p)
+    jacobian = model.jacobian(p)
+    rng = np.random.default_rng(1)
+    v, u = rng.standard_normal(p.size), rng.standard_normal(jacobian.shape[0])
+    assert u @ (jacobian @ v) == pytest.approx(v @ jacobian.rmatvec(u), rel=1e-8)  # K^-1: rounding ~1e-10
+    dense = model.dense_jacobian(p)
+    assert np.allclose(jacobian @ np.eye(p.size), dense, rtol=0, atol=1e-9 * np.abs(dense).max())
+    assert np.allclose(model.column_norms(p), np.linalg.norm(dense, axis=0), rtol=1e-9, atol=0)
+    assert np.any(model.column_norms(p) > 0)
+
+
 def test_regularizer_converges_with_resolution():
     """R weighs each element by its share of the length: the same strand's R at 200 and 400
     vertices agrees within 5% (a per-element sum doubled with n)."""
