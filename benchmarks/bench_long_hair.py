@@ -26,6 +26,7 @@ and the process's peak resident memory so far.
 from __future__ import annotations
 
 import argparse
+import resource
 import time
 from collections import Counter
 
@@ -106,24 +107,28 @@ def main() -> None:
 
 def size_table(sizes: list[int]) -> None:
     """The second table of the module docstring."""
-    import resource
-
     long = scaled(sagfree.scenes.default_groom()[5], 5.0)
     print(f"\n{'vertices':>8} {'status':>11} {'wall s':>8} {'us/vertex':>10} {'least-sag evals':>16} "
           f"{'sag/naive':>10} {'stable':>6} {'peak MB':>8}")
-    sagfree.optimize([sagfree.Strand(resample(long.points, 30), radius=long.radius)], jobs=1)  # warm
+    sagfree.optimize([_resampled(long, 30)], jobs=1)  # warm
     for n in sizes:
-        strand = sagfree.Strand(resample(long.points, n), radius=long.radius, youngs_modulus=long.youngs_modulus,
-                                shear_modulus=long.shear_modulus, density=long.density)
+        strand = _resampled(long, n)
         start = time.perf_counter()
         (result,) = sagfree.optimize([strand], jobs=1)
         wall = time.perf_counter() - start
-        naive = equilibrium(sagfree.Problem(strand), sagfree.Problem(strand).p0)
+        problem = sagfree.Problem(strand)
+        naive = equilibrium(problem, problem.p0)
         sag = result.static_sag if result.static_sag is not None else float("nan")  # converged: rests at q*
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         print(f"{n:8d} {result.status:>11} {wall:8.2f} {1e6 * wall / n:10.0f} "
               f"{result.iterations.get('least_sag', 0):16d} {sag / naive.relative_sag:10.3f} "
               f"{str(result.stable):>6} {peak:8.0f}", flush=True)
+
+
+def _resampled(strand: sagfree.Strand, n: int) -> sagfree.Strand:
+    """``strand`` at n vertices along its polyline, same radius and material."""
+    return sagfree.Strand(resample(strand.points, n), radius=strand.radius, youngs_modulus=strand.youngs_modulus,
+                          shear_modulus=strand.shear_modulus, density=strand.density)
 
 
 if __name__ == "__main__":

@@ -93,6 +93,9 @@ class StaticSag:
         self.visited: list[tuple[float, np.ndarray]] = []  # (S, p) of each stable equilibrium found
         weight = np.sqrt(problem.masses / problem.masses.sum()) / problem.strand.length
         self.weight = weight[:, None]
+        # the residuals' rows: each vertex position's index in q and its weight
+        self.positions, self.position_weights = dofs.position_index(problem.n_vertices).ravel(), np.repeat(weight, 3)
+        self._linearized = None  # (state, p, factor, B) of the last _linearization
 
     def _settle(self, p: np.ndarray) -> bool:
         """Continue the equilibrium to p; whether one was found."""
@@ -119,10 +122,8 @@ class StaticSag:
         with it or its transpose is one banded Cholesky solve and one sparse product, O(n)
         (``dense_jacobian`` forms the matrix, 3n x parameters)."""
         factor, scaled = self._linearization(p)
-        problem = self.problem
-        free, size = problem.free_index, problem.q_star.size
-        positions = dofs.position_index(problem.n_vertices).ravel()
-        weight = np.repeat(self.weight[:, 0], 3)
+        free, size = self.problem.free_index, self.problem.q_star.size
+        positions, weight = self.positions, self.position_weights
         transposed = scaled.T.tocsr()
 
         def product(v):
@@ -145,8 +146,7 @@ class StaticSag:
         moved = np.zeros((problem.q_star.size, p.size))
         moved[problem.free_index] = scipy.linalg.cho_solve_banded((np.ascontiguousarray(factor.T), True),
                                                                   scaled.toarray())
-        positions = moved[dofs.position_index(problem.n_vertices)]       # (n, 3, parameters)
-        return (self.weight[:, :, None] * positions).reshape(-1, p.size)
+        return self.position_weights[:, None] * moved[self.positions]
 
     def column_norms(self, p: np.ndarray) -> np.ndarray:
         """|jacobian(p)[:, j]|_2 for every parameter j: the rows of W P K^-1 B, solved NORM_BLOCK
@@ -157,8 +157,7 @@ class StaticSag:
         free, size = problem.free_index, problem.q_star.size
         row_of = np.full(size, -1)
         row_of[free] = np.arange(free.size)
-        rows = row_of[dofs.position_index(problem.n_vertices).ravel()]
-        weight = np.repeat(self.weight[:, 0], 3)
+        rows, weight = row_of[self.positions], self.position_weights
         moving = np.flatnonzero(rows >= 0)  # a prescribed position has no sensitivity
         lower = (np.ascontiguousarray(factor.T), True)
         squares = np.zeros(p.size)
@@ -173,11 +172,15 @@ class StaticSag:
     def _linearization(self, p: np.ndarray):
         """(Cholesky factor of K, B) at the equilibrium of p (continued there if it is not the last
         one): K the free block of the static Hessian, shifted by the mass metric where E has a
-        saddle (as Newton's damping does); B the rows of D dc/dp on the free DOFs (CSR)."""
+        saddle (as Newton's damping does); B the rows of D dc/dp on the free DOFs (CSR). Kept for
+        the next call at the same p and equilibrium (the column norms, then the first Jacobian)."""
         problem = self.problem
         if self.at is None or not np.array_equal(p, self.at):
             self._settle(p)
         state, free = self.state, problem.free_index
+        known = self._linearized
+        if known is not None and known[0] is state and np.array_equal(known[1], p):
+            return known[2], known[3]
         band = problem.free_band(problem.static_hessian_band(p, state.q, state.frames))
         factor, shift = band_cholesky(band), 0.0
         masses = problem.dof_masses[free]
@@ -187,7 +190,9 @@ class StaticSag:
             shifted[0] += shift * masses
             factor = band_cholesky(shifted)
         jacobian = problem.strand_jacobian(p, state.q, state.frames).tocsc()
-        return factor, (sp.diags(problem.row_scale[free]) @ jacobian).tocsr()
+        scaled = (sp.diags(problem.row_scale[free]) @ jacobian).tocsr()
+        self._linearized = (state, p.copy(), factor, scaled)
+        return factor, scaled
 
 
 def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUATIONS) -> LeastSag:

@@ -197,6 +197,23 @@ def test_static_sag_jacobian_matches_finite_differences(long_strand):
     assert np.linalg.norm(jacobian @ direction - difference) <= 1e-5 * np.linalg.norm(difference)
 
 
+def test_least_sag_through_the_operator(long_strand, monkeypatch):
+    """The path of long strands (no dense Jacobian: DENSE_BYTES exceeded), here forced on a short
+    one: inside the box, stable where it rests, sagging well below its start (a wrong transposed
+    product leaves it at the start)."""
+    from sagfree.solvers import least_sag
+
+    problem = sagfree.Problem(long_strand)
+    start = stiffest(problem, problem.p0)
+    monkeypatch.setattr(least_sag, "DENSE_BYTES", 0)
+    effort = least_sag.least_sag(problem, start)
+    assert effort.evaluations > 1 and effort.rest.converged
+    assert np.all(effort.p >= problem.lower) and np.all(effort.p <= problem.upper)
+    # its start (the stiffest p0) sags 0.41 of the strand's length, naive 1.03: the steps did the work
+    assert effort.rest.relative_sag < 0.5 * effort.start.relative_sag
+    assert problem.stability(effort.p, q=effort.rest.q, frames=effort.rest.frames) >= problem.stability_margin
+
+
 def test_static_sag_operator_transpose_and_column_norms(long_strand):
     """The least-sag Jacobian as an operator (long strands: never a dense 3n x parameters matrix)
     applies the dense Jacobian, its transpose product is the adjoint of its product, and the column

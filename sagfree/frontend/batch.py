@@ -279,9 +279,9 @@ def _check(strand, p, problem_options, steps, dt, damping, push) -> SagCheck:
     nan = float("nan")
     if p is None or not np.all(np.isfinite(p)):
         return SagCheck(nan, nan, nan, False, 0.0, 0.0, "no parameters (its optimization failed)")
+    warm_check(problem_options)  # once per process, untimed (warm module); never raises
+    start = time.perf_counter()
     try:
-        warm_check(problem_options)  # once per process, untimed (warm module)
-        start = time.perf_counter()
         return sag_check(Problem(strand, **problem_options), p, steps, dt, damping, push=push)
     except Exception as exc:  # noqa: BLE001 - reported per strand, the batch goes on
         detail = traceback.format_exception_only(type(exc), exc)[-1].strip()
