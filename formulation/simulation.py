@@ -28,7 +28,8 @@ singularity at opposite tangents during large static sags.
 
 Newton (``newton_solve``): the free block of K = d2Phi/dq2 + mu M is banded (half bandwidth 10) and
 factored by the banded Cholesky of sagfree.linalg in O(n); an Armijo backtracking line search on Phi takes the
-step. mu is a Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is the inertia of a pseudo
+step, along a curve on which the edges of the free tail turn instead of stretching
+(``length_keeping_step``). mu is a Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is the inertia of a pseudo
 time step 1/sqrt(mu)): it falls 16x when a full step decreased Phi by more than 0.75 of the
 quadratic model's prediction, and rises 4x after a poorer or shortened step, or when the line search fails
 (MAX_HALVINGS halvings; the direction is then recomputed); below MU_MIN it is 0, i.e. pure Newton
@@ -261,6 +262,7 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
     problem = potential.problem
     free = problem.free_index
     scale, metric, step_limit, floor = potential.scales
+    anchor = int(problem.strand.prescribed_vertices.max())  # the tail past it turns (length_keeping_step)
     q = np.array(q, dtype=float)
     record = NewtonSolve()
     phi = potential.value(q)
@@ -293,7 +295,7 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
                 mu = max(4.0 * mu, MU_MIN)
                 continue
             d = -band_solve(factor, g)
-            alpha, trial, phi_trial = _line_search(potential, q, free, phi, g @ d, d)
+            alpha, trial, phi_trial = _line_search(potential, q, free, phi, g @ d, d, anchor)
             if trial is not None:
                 break
             record.rejected += 1
@@ -321,14 +323,14 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
             phi = potential.value(q)
 
 
-def _line_search(potential: IncrementalPotential, q, free, phi, slope, d):
-    """Armijo backtracking from q along d (on the DOFs ``free``): the first alpha = 1, 1/2, ... (at most
-    MAX_HALVINGS halvings) with Phi(q + alpha d) <= Phi(q) + ARMIJO alpha slope, or with a change of
-    Phi below rounding. Returns (alpha, q + alpha d, Phi there), or (0, None, None)."""
+def _line_search(potential: IncrementalPotential, q, free, phi, slope, d, anchor: int):
+    """Armijo backtracking from q along the curve of d (``length_keeping_step``; on the DOFs ``free``):
+    the first alpha = 1, 1/2, ... (at most MAX_HALVINGS halvings) with Phi(q(alpha)) <= Phi(q) +
+    ARMIJO alpha slope, or with a change of Phi below rounding. Returns (alpha, q(alpha), Phi there),
+    or (0, None, None)."""
     alpha = 1.0
     for _ in range(MAX_HALVINGS + 1):
-        trial = q.copy()
-        trial[free] += alpha * d
+        trial = length_keeping_step(q, free, alpha, d, anchor)
         with np.errstate(all="ignore"):
             phi_trial = potential.value(trial)
         unresolvable = -alpha * slope <= 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
@@ -336,6 +338,36 @@ def _line_search(potential: IncrementalPotential, q, free, phi, slope, d):
             return alpha, trial, phi_trial
         alpha *= 0.5
     return 0.0, None, None
+
+
+def length_keeping_step(q: np.ndarray, free: np.ndarray, alpha: float, d: np.ndarray, anchor: int) -> np.ndarray:
+    """q(alpha): q + alpha d on the DOFs ``free``, except that the edges past vertex ``anchor`` (the
+    last prescribed one) turn instead of stretching. Each such edge e_j = x_{j+1} - x_j becomes
+
+        e_j(alpha) = (|e_j| + alpha t_j . de_j) (e_j + alpha de_j) / |e_j + alpha de_j|      (t_j = e_j / |e_j|)
+
+    (de_j the change d makes to it), and the free tail is rebuilt from x_anchor by summing them.
+    The curve has the straight step's tangent at alpha = 0 (d q(alpha)/d alpha = d there, so
+    Armijo's slope g . d holds), but a turn of an edge no longer lengthens it by alpha^2 |de_j
+    perpendicular|^2 / (2 |e_j|). A hair's stretch stiffness is ~1e6 times its bending's, so along
+    straight steps that second-order stretch held the Newton steps of a strand that falls far
+    short: a long hair falling to hang took 40 times more steps. Vertices up to the anchor (a held
+    tip or pin: a span between prescribed vertices cannot close by summing) step straight; where
+    the step collapses an edge (a first-order length <= 0) the whole step is straight."""
+    trial = q.copy()
+    trial[free] += alpha * d
+    n_vertices = (q.size + 1) // 4
+    if anchor >= n_vertices - 1:
+        return trial
+    index = dofs.position_index(n_vertices)[anchor:]
+    start, moved = q[index], trial[index]
+    edges, turned = np.diff(start, axis=0), np.diff(moved, axis=0)
+    lengths, turned_lengths = np.linalg.norm(edges, axis=1), np.linalg.norm(turned, axis=1)
+    kept = lengths + np.einsum("ij,ij->i", edges, turned - edges) / lengths
+    if not (np.all(kept > 0.0) and np.all(turned_lengths > 0.0)):
+        return trial
+    trial[index[1:]] = start[0] + np.cumsum(turned * (kept / turned_lengths)[:, None], axis=0)
+    return trial
 
 
 def _stagnated(residuals: list[float]) -> bool:

@@ -6,6 +6,7 @@ import scipy.linalg
 
 import sagfree
 from sagfree.formulation import dofs
+from sagfree.formulation import simulation as S
 from sagfree.formulation.curvature import VARIANTS
 from sagfree.reports import experiments
 
@@ -99,6 +100,54 @@ def test_pinned_root_swings_down_and_keeps_its_root():
     assert static.relative_sag == pytest.approx(np.sqrt(2), rel=1e-3)
     np.testing.assert_array_equal(static.positions[0], problem.strand.points[0])
     assert not np.allclose(static.positions[1], problem.strand.points[1])
+
+
+def _long_hair(n_vertices: int = 100) -> sagfree.Problem:
+    """Strand 5 of the default groom, five times as long: its naive parameters let it fall to hang."""
+    strand = sagfree.scenes.default_groom()[5]
+    points = strand.points[0] + 5.0 * (strand.points - strand.points[0])
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
+    even = np.linspace(0.0, arc[-1], n_vertices)
+    resampled = np.column_stack([np.interp(even, arc, points[:, k]) for k in range(3)])
+    return sagfree.Problem(strand.replaced(points=resampled, theta=None))
+
+
+def test_length_keeping_step_has_the_straight_steps_tangent_and_turns_edges_without_stretching_them():
+    problem = _long_hair(30)
+    q, free, n = problem.q_star, problem.free_index, problem.n_vertices
+    rng = np.random.default_rng(0)
+    d = rng.standard_normal(free.size) * 1e-2
+    anchor = 1  # the clamped root: x_0, x_1 prescribed
+    h = 1e-6
+    tangent = (S.length_keeping_step(q, free, h, d, anchor) - S.length_keeping_step(q, free, -h, d, anchor)) / (2 * h)
+    np.testing.assert_allclose(tangent[free], d, rtol=0, atol=1e-8 * np.abs(d).max())
+    # a rigid turn of the tail about x_1 (infinitesimal: the straight step stretches every edge)
+    x = dofs.positions(q)
+    turn = np.zeros_like(q)
+    turn[dofs.position_index(n)] = np.cross([0.0, 0.3, 0.1], x - x[1])
+    lengths = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    curved = dofs.positions(S.length_keeping_step(q, free, 1.0, turn[free], anchor))
+    straight = dofs.positions(S.length_keeping_step(q, free, 1.0, turn[free], n - 1))
+    np.testing.assert_allclose(np.linalg.norm(np.diff(curved, axis=0), axis=1), lengths, rtol=1e-12)
+    stretched = np.linalg.norm(np.diff(straight, axis=0), axis=1)[1:] / lengths[1:]
+    assert np.all(stretched > 1.0) and stretched.max() > 1.04
+    np.testing.assert_array_equal(curved[:2], x[:2])
+    # a held tip (anchor n - 1) steps straight: nothing can be summed towards it
+    np.testing.assert_array_equal(S.length_keeping_step(q, free, 0.5, d, n - 1)[free], q[free] + 0.5 * d)
+
+
+def test_a_long_strand_falls_to_hang_in_few_newton_steps():
+    # Along straight Newton steps this strand's fall from q* took 1,928 steps (turning edges
+    # stretched, the line search and the damping kept the steps short); the equilibrium is the same.
+    problem = _long_hair(100)
+    static = sagfree.equilibrium(problem, problem.p0)
+    assert static.converged, static.newton.message
+    assert static.relative_sag > 1.0  # it hangs
+    assert static.newton.steps <= 200
+    # the rest state a damped implicit-Euler motion from q* comes to (still creeping at 1e-4 L)
+    run = sagfree.simulate(problem, problem.p0, steps=400, dt=2e-2, damping=20.0)
+    assert run.converged
+    assert np.linalg.norm(run.trajectory[-1] - static.positions, axis=1).max() <= 1e-3 * problem.strand.length
 
 
 def test_flipped_frames_2d_average_has_no_bending_resistance_4d_is_unaffected():
