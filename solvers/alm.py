@@ -666,6 +666,8 @@ def _least_rest_change(problem: Problem) -> np.ndarray | None:
 
 #: weight of R against 1/2 |c|^2 in the best-effort phase: a tie-break among least-residual points
 LEAST_RESIDUAL_TIEBREAK = 1e-8
+#: relative decrease of the least-residual objective a run must still be able to reach to go on
+LEAST_RESIDUAL_GAIN = 1e-4
 
 
 def least_residual(problem: Problem, starts: list[np.ndarray], counts: dict, qp_rtol: float = 1e-10,
@@ -676,18 +678,27 @@ def least_residual(problem: Problem, starts: list[np.ndarray], counts: dict, qp_
     either can be the better basin), keeping the lowest. Each step is a box QP on diag(eps w +
     damping) + J^T J solved by MPRGP with the active-set Cholesky, warm-started with the previous
     step's active bounds (as the Gauss-Newton QPs: without it each QP started from the free face and
-    walked the active set back, 2.5x the factorizations), then an Armijo line search; a run stops
-    when a step lowers the objective by less than 1e-12 of itself. |c| is the force on each
+    walked the active set back, 2.5x the factorizations), then an Armijo line search. A run stops
+    when its remaining steps, at the rate of its last one, could not bring its objective below
+    (1 - LEAST_RESIDUAL_GAIN) of itself nor, for the second run, below the first run's: on long
+    strands the stall point's run reached its value in a step or two and the run from p0 crawled
+    towards a worse one, each for all of its 100 steps (a quarter of an infeasible strand's time). |c| is the force on each
     free DOF over its weight, so this is the weighted least-squares force of the predecessor's
     objective f^T M^-1 f with the weights of c. Its steps are counted as ``least_residual``.
     """
-    runs = [_least_residual_run(problem, np.clip(p, problem.layout.lower, problem.layout.upper), counts, qp_rtol,
-                                max_steps) for p in starts]
-    return min(runs, key=lambda run: run[1])[0]
+    best, lowest = None, np.inf
+    for start in starts:
+        p, value = _least_residual_run(problem, np.clip(start, problem.layout.lower, problem.layout.upper), counts,
+                                       qp_rtol, max_steps, lowest)
+        if best is None or value < lowest:
+            best, lowest = p, value
+    return best
 
 
-def _least_residual_run(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: float, max_steps: int):
-    """(p, objective) after projected Levenberg-Marquardt on 1/2 |c|^2 + eps R from p (least_residual)."""
+def _least_residual_run(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: float, max_steps: int,
+                        beat: float = np.inf):
+    """(p, objective) after projected Levenberg-Marquardt on 1/2 |c|^2 + eps R from p (least_residual),
+    stopped where it cannot gain LEAST_RESIDUAL_GAIN of itself or reach ``beat`` at its rate."""
     lower, upper = problem.layout.lower, problem.layout.upper
     w, p0 = problem.layout.weights, problem.layout.p0
     border = 1 if STRAND_BLOCK in problem.blocks else 0
@@ -699,7 +710,7 @@ def _least_residual_run(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: 
     c = problem.residual(p)
     value = objective(p, c)
     at_lower, at_upper = p <= lower, p >= upper
-    for _ in range(max_steps):
+    for step in range(max_steps):
         J = problem.strand_jacobian(p)
         gradient = J.T @ c + eps * w * (p - p0)
         hessian = gram(J, eps * w + 1e-12 + 1e-11 * column_norms(J), 1.0, border)
@@ -727,7 +738,8 @@ def _least_residual_run(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: 
             break
         decrease = value - trial_value
         p, c, value = trial, c_trial, trial_value
-        if decrease <= 1e-12 * value:
+        reachable = value - (max_steps - step - 1) * decrease  # at this step's rate
+        if decrease <= 1e-12 * value or reachable > min(beat, (1.0 - LEAST_RESIDUAL_GAIN) * value):
             break
     return p, value
 

@@ -17,10 +17,10 @@ Jacobian. scipy's trust-region reflective least squares (``least_squares``, meth
 keeps every iterate inside the box; LSMR for its subproblems, where the exact solver's dense SVD
 grows like the cube of the size) takes the steps, in the variables' scales of the Jacobian's column
 norms (x_scale="jac"). The dense Jacobian (3n x parameters) grows like n^2, and so do its products
-in LSMR: above DENSE_BYTES (~670 vertices; at 2000, by their sizes, it and its intermediates would
-take ~2 GB) it is never formed but applied as an operator, each product with it or its transpose
-one pair of band triangular solves, O(n) (``StaticSag.jacobian``), LSMR capped at LSMR_ITERATIONS
-per step, and the scales are the column norms at the start, taken once (3n solves,
+in LSMR (capped at LSMR_ITERATIONS per step): above DENSE_BYTES (~670 vertices; at 2000, by their
+sizes, it and its intermediates would take ~2 GB) it is never formed but applied as an operator,
+each product with it or its transpose one pair of band triangular solves, O(n)
+(``StaticSag.jacobian``), and the scales are the column norms at the start, taken once (3n solves,
 ``StaticSag.column_norms``: scipy updates "jac" scales only from a matrix; the operator at every
 size, so scaled, sagged more at 400 vertices, benchmarks/RESULTS.md). Each evaluation continues the
 equilibrium from the previous one (``equilibrium(start=...)``), so p moves along one branch of
@@ -43,7 +43,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import scipy.optimize
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
@@ -51,7 +50,7 @@ from scipy.sparse.linalg import LinearOperator
 from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import Equilibrium, equilibrium
-from sagfree.linalg.cholesky import band_cholesky, band_solve
+from sagfree.linalg.cholesky import band_cholesky, band_solve, band_solve_many
 
 #: Model evaluations (static solves) the minimization may take: enough for the large early gains,
 #: bounded so that a groom of long hair costs seconds per strand.
@@ -62,8 +61,9 @@ VERIFIED = 3
 CONTINUATION_STEPS = 100
 #: Largest dense Jacobian (bytes) the minimization takes; above it (~670 vertices) the operator.
 DENSE_BYTES = 64 * 2**20
-#: LSMR iterations per trust-region step with the operator (scipy's default, min(3n, parameters),
-#: grows with the strand; the step only needs a direction better than the gradient's).
+#: LSMR iterations per trust-region step (scipy's default, min(3n, parameters), grows with the
+#: strand, and made LSMR half of a 400-vertex strand's time; the step only needs a direction better
+#: than the gradient's: capped, the sag was the same or less on the strands measured).
 LSMR_ITERATIONS = 30
 #: Right-hand sides per block of StaticSag.column_norms' solves.
 NORM_BLOCK = 256
@@ -139,35 +139,42 @@ class StaticSag:
         return LinearOperator((positions.size, p.size), matvec=product, rmatvec=transposed_product, dtype=float)
 
     def dense_jacobian(self, p: np.ndarray) -> np.ndarray:
-        """``jacobian(p)`` as a dense matrix: K^-1 applied to every column of B at once (LAPACK's
-        banded Cholesky solve), for strands whose matrix fits DENSE_BYTES."""
+        """``jacobian(p)`` as a dense matrix, for strands whose matrix fits DENSE_BYTES: by rows, as
+        (B^T K^-1 P^T W)^T (K is symmetric), K^-1 applied to the 3n weighted position rows at once
+        (``band_solve_many``): half the right-hand sides of K^-1 B's columns (6n parameters)."""
         factor, scaled = self._linearization(p)
-        problem = self.problem
-        moved = np.zeros((problem.q_star.size, p.size))
-        moved[problem.free_index] = scipy.linalg.cho_solve_banded((np.ascontiguousarray(factor.T), True),
-                                                                  scaled.toarray())
-        return self.position_weights[:, None] * moved[self.positions]
+        jacobian = np.zeros((self.positions.size, p.size))
+        for block, rows in self._weighted_rows():
+            jacobian[block] = (scaled.T @ band_solve_many(factor, rows)).T
+        return jacobian
 
     def column_norms(self, p: np.ndarray) -> np.ndarray:
         """|jacobian(p)[:, j]|_2 for every parameter j: the rows of W P K^-1 B, solved NORM_BLOCK
         at a time (K is symmetric: B^T K^-1 P^T W), their squares summed per column. 3n solves
         once per minimization (the trust region's variable scales), in O(n NORM_BLOCK) memory."""
         factor, scaled = self._linearization(p)
-        problem = self.problem
-        free, size = problem.free_index, problem.q_star.size
-        row_of = np.full(size, -1)
-        row_of[free] = np.arange(free.size)
-        rows, weight = row_of[self.positions], self.position_weights
-        moving = np.flatnonzero(rows >= 0)  # a prescribed position has no sensitivity
-        lower = (np.ascontiguousarray(factor.T), True)
         squares = np.zeros(p.size)
-        for start in range(0, moving.size, NORM_BLOCK):
-            block = moving[start:start + NORM_BLOCK]
-            unit = np.zeros((free.size, block.size))
-            unit[rows[block], np.arange(block.size)] = weight[block]
-            rows_of_jacobian = scaled.T @ scipy.linalg.cho_solve_banded(lower, unit)  # (parameters, block)
+        for _, rows in self._weighted_rows(NORM_BLOCK):
+            rows_of_jacobian = scaled.T @ band_solve_many(factor, rows)  # (parameters, block)
             squares += np.einsum("jk,jk->j", rows_of_jacobian, rows_of_jacobian)
         return np.sqrt(squares)
+
+    def _weighted_rows(self, block_size: int | None = None):
+        """(residual rows, (P^T W) on the free DOFs for them) in blocks of ``block_size`` (None: one
+        block): the right-hand sides whose K^-1 gives the Jacobian's rows. A prescribed position has
+        no sensitivity: its row stays zero and is not solved for."""
+        problem = self.problem
+        free = problem.free_index
+        row_of = np.full(problem.q_star.size, -1)
+        row_of[free] = np.arange(free.size)
+        rows, weight = row_of[self.positions], self.position_weights
+        moving = np.flatnonzero(rows >= 0)
+        size = moving.size if block_size is None else block_size
+        for start in range(0, moving.size, max(size, 1)):
+            block = moving[start:start + size]
+            unit = np.zeros((free.size, block.size))
+            unit[rows[block], np.arange(block.size)] = weight[block]
+            yield block, unit
 
     def _linearization(self, p: np.ndarray):
         """(Cholesky factor of K, B) at the equilibrium of p (continued there if it is not the last
@@ -202,14 +209,13 @@ def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUA
     start = equilibrium(problem, p)
     model = StaticSag(problem, start if start.converged else equilibrium(problem, problem.p0))
     if 3 * problem.n_vertices * p.size * 8 <= DENSE_BYTES:
-        jacobian, scales, options = model.dense_jacobian, "jac", {}
+        jacobian, scales = model.dense_jacobian, "jac"
     else:  # the operator, in the scales of its column norms at the start (x_scale="jac" needs a matrix)
         norms = model.column_norms(p)
         jacobian, scales = model.jacobian, 1.0 / np.where(norms > 0, norms, 1.0)
-        options = {"maxiter": LSMR_ITERATIONS}
     try:
         run = scipy.optimize.least_squares(model.residuals, p, jac=jacobian, bounds=(lower, upper), method="trf",
-                                           x_scale=scales, tr_solver="lsmr", tr_options=options,
+                                           x_scale=scales, tr_solver="lsmr", tr_options={"maxiter": LSMR_ITERATIONS},
                                            max_nfev=max_evaluations)
         evaluations = int(run.nfev)
     except ValueError:  # no equilibrium found at the start itself ("residuals are not finite")

@@ -9,7 +9,7 @@ import sagfree.solvers.alm as alm
 import sagfree.solvers.gauss_newton as gauss_newton
 import sagfree.solvers.mprgp as mprgp
 from sagfree.linalg.band import bordered_band, gram, matvec
-from sagfree.linalg.cholesky import factor_active, solve_factored
+from sagfree.linalg.cholesky import band_cholesky, band_solve, band_solve_many, factor_active, solve_factored
 from sagfree.solvers.interior_point import interior_point
 from sagfree.solvers.mprgp import PRECONDITIONERS, solve_box_qp
 
@@ -154,6 +154,17 @@ def test_gram_of_a_compiled_width_adds_in_the_pair_by_pair_order(rng, width, bor
             for b in entries[i:]:
                 reference[b - a, a] += va * J[r, b]
     assert np.array_equal(band.band, reference)
+
+
+def test_many_right_hand_sides_solve_as_one_at_a_time(rng):
+    H = random_banded_spd(rng, 40, 10, 0)
+    band = np.array([np.r_[np.diag(H, -k), np.zeros(k)] for k in range(11)])
+    factor = band_cholesky(band)
+    rhs = rng.standard_normal((40, 7))
+    many = band_solve_many(factor, rhs)
+    np.testing.assert_allclose(many, np.linalg.solve(H, rhs), rtol=1e-9, atol=1e-12 * np.abs(many).max())
+    one_at_a_time = np.column_stack([band_solve(factor, column) for column in rhs.T])
+    np.testing.assert_allclose(many, one_at_a_time, rtol=1e-13, atol=1e-15 * np.abs(many).max())
 
 
 def test_indefinite_matrix_is_reported(rng):

@@ -13,7 +13,8 @@ bodies' tangent planes): with bodies, the warm-up strand rests on the first of t
 warm-up strand, held by its root alone, starts at its optimum, and the first strand that needed a
 Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
 prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP,
-the stabilization's compiled round (the warm-up strand is stable). On a machine whose caches do not
+the stabilization's compiled round (the warm-up strand is stable), the many-right-hand-side band
+solve of the least sag (the warm-up strand is feasible). On a machine whose caches do not
 hold this code's kernels yet, the first warm-up runs once in a child interpreter first (priming), so
 that the process that solves, and the workers it forks, load the kernels instead of carrying a compile.
 The forward check has its own (``warm_check``), which the batch's ``simulate_strands`` runs before
@@ -32,6 +33,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import sag_check
 from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
+from sagfree.linalg import cholesky
 from sagfree.solvers import interior_point
 
 from .priming import primed_in_child
@@ -152,6 +154,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     primed_in_child(solver, solver_options, problem_options)  # a machine's first compile: in a child (priming)
     _WARM.add(key)
     _quietly(interior_point.compile_kernels)
+    _quietly(cholesky.compile_kernels)
     entry = solver_entry(solver)
     _quietly(_solve_warm_strand, entry, solver_options, problem_options or {})
     release_linking_ir()  # the loaded kernels' IR, which only compiles of their callers read
