@@ -27,10 +27,10 @@ iterate (exact in value: the transported frame is the same), which keeps the tra
 singularity at opposite tangents during large static sags.
 
 Newton (``newton_solve``): the free block of K = d2Phi/dq2 + mu M is banded (half bandwidth 10) and
-factored by the banded Cholesky of sagfree.linalg in O(n); an Armijo backtracking line search on Phi takes the
-step, along a curve on which the edges of the free tail turn instead of stretching
-(``length_keeping_step``). mu is a Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is the inertia of a pseudo
-time step 1/sqrt(mu)): it falls 16x when a full step decreased Phi by more than 0.75 of the
+factored by the banded Cholesky of sagfree.linalg in O(n); an Armijo backtracking line search on Phi
+takes the step, along a curve on which the edges of the free tail turn instead of stretching
+(``length_keeping_step``). mu is a Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is
+the inertia of a pseudo time step 1/sqrt(mu)): it falls 16x when a full step decreased Phi by more than 0.75 of the
 quadratic model's prediction, and rises 4x after a poorer or shortened step, or when the line search fails
 (MAX_HALVINGS halvings; the direction is then recomputed); below MU_MIN it is 0, i.e. pure Newton
 with quadratic convergence. The

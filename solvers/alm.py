@@ -682,9 +682,9 @@ def least_residual(problem: Problem, starts: list[np.ndarray], counts: dict, qp_
     when its remaining steps, at the rate of its last one, could not bring its objective below
     (1 - LEAST_RESIDUAL_GAIN) of itself nor, for the second run, below the first run's: on long
     strands the stall point's run reached its value in a step or two and the run from p0 crawled
-    towards a worse one, each for all of its 100 steps (a quarter of an infeasible strand's time). |c| is the force on each
-    free DOF over its weight, so this is the weighted least-squares force of the predecessor's
-    objective f^T M^-1 f with the weights of c. Its steps are counted as ``least_residual``.
+    towards a worse one, each for all of its 100 steps. |c| is the force on each free DOF over its
+    weight, so this is the weighted least-squares force of the predecessor's objective f^T M^-1 f
+    with the weights of c. Its steps are counted as ``least_residual``.
     """
     best, lowest = None, np.inf
     for start in starts:

@@ -25,8 +25,8 @@ each product with it or its transpose one pair of band triangular solves, O(n)
 size, so scaled, sagged more at 400 vertices, benchmarks/RESULTS.md). Each evaluation continues the
 equilibrium from the previous one (``equilibrium(start=...)``), so p moves along one branch of
 equilibria; where the continuation fails (CONTINUATION_STEPS Newton steps), the step was too long
-for it and the trust region shrinks. (A restart from q* costs 10-100 times more: the overdamped
-Newton of ``equilibrium`` follows the whole fall.)
+for it and the trust region shrinks. (A restart from q* follows the whole fall: ~7 times the
+Newton steps at 100 vertices.)
 
 S weighs the whole strand, not only the vertex that moves most: smooth, and a Gauss-Newton problem;
 the reported sag (the largest displacement) falls with it (benchmarks/RESULTS.md). The start is the
