@@ -380,9 +380,11 @@ class Problem:
         if not self.contacts.count:
             return _no_pushes(width)
         rows = dofs.position_index(self.n_vertices)[self.contacts.vertices].astype(np.int64)
-        return (np.ascontiguousarray(self.layout.blocks[CONTACT_BLOCK].reshape(-1, width), dtype=np.int64),
-                np.ascontiguousarray(self.contacts.directions, dtype=float), np.ascontiguousarray(rows),
-                np.ascontiguousarray(self.row_scale[rows[:, 0]]))
+        # copies: a read-only view of the layout's blocks is another numba type, and the compiled loops
+        # that take these (gauss_newton._inner) were compiled a second time for strands on bodies
+        return (np.array(self.layout.blocks[CONTACT_BLOCK].reshape(-1, width), dtype=np.int64),
+                np.array(self.contacts.directions, dtype=float), np.ascontiguousarray(rows),
+                np.array(self.row_scale[rows[:, 0]]))
 
     def contact_forces(self, p) -> np.ndarray:
         """(n, 3) force of the bodies on each vertex at q*, N: D_i sum_j g_ij d_ij on the contact
@@ -577,7 +579,8 @@ class Problem:
         size = self.q_star.size
         compiled = self._compiled_hessian if q is None and frames is None else None
         if compiled is not None and not np.array_equal(p, self.layout.p0):  # p0: _hessian_blocks' shortcut
-            return at_rest.hessian_band(self.check_parameters(p), *compiled, target, source, ones,
+            p = self.check_parameters(p)  # writable, as the compiled callers pass it (read-only: a second compile)
+            return at_rest.hessian_band(p if p.flags.writeable else p.copy(), *compiled, target, source, ones,
                                         HALF_BANDWIDTH + 1, size)
         entries = np.concatenate([h.ravel() for _, h in self._hessian_blocks(p, q, frames)])
         return scatter_values(target, source, ones, entries, (HALF_BANDWIDTH + 1) * size).reshape(-1, size)
