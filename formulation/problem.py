@@ -752,7 +752,9 @@ class Problem:
             return None
         _, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry, kinematics_jacobian = compiled[0]
         blocks, empty = self.layout.blocks, np.zeros(0, dtype=np.int64)
-        index = [np.ascontiguousarray(blocks.get(block, empty), dtype=np.int64)
+        # writable copies: the layout's blocks may be read-only, the missing ones are not, and each
+        # mix of the two was another numba type, so the kernel compiled up to four times
+        index = [np.array(blocks.get(block, empty), dtype=np.int64)
                  for block in ("stretch_stiffness", "bend_stiffness", "twist_stiffness", STRAND_BLOCK)]
         return (vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry, kinematics_jacobian,
                 self.edge_dofs, self.vertex_dofs, *(function.address for function in hessians),
