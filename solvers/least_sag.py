@@ -92,9 +92,14 @@ class StaticSag:
         self.problem, self.state, self.at, self.newton = problem, start, None, 0
         self.visited: list[tuple[float, np.ndarray]] = []  # (S, p) of each stable equilibrium found
         weight = np.sqrt(problem.masses / problem.masses.sum()) / problem.strand.length
-        self.weight = weight[:, None]
         # the residuals' rows: each vertex position's index in q and its weight
         self.positions, self.position_weights = dofs.position_index(problem.n_vertices).ravel(), np.repeat(weight, 3)
+        # the rows whose position is free (a prescribed one has no sensitivity: its row of the
+        # Jacobian is zero) and their DOFs' rows in the free block of K
+        row_of = np.full(problem.q_star.size, -1)
+        row_of[problem.free_index] = np.arange(problem.free_index.size)
+        self.moving = np.flatnonzero(row_of[self.positions] >= 0)
+        self.moving_rows, self.moving_weights = row_of[self.positions][self.moving], self.position_weights[self.moving]
         self._linearized = None  # (state, p, factor, B) of the last _linearization
 
     def _settle(self, p: np.ndarray) -> bool:
@@ -110,7 +115,7 @@ class StaticSag:
         trust region then shrinks)."""
         if not self._settle(p):
             return np.full(3 * self.problem.n_vertices, np.nan)
-        residuals = (self.weight * (self.state.positions - self.problem.strand.points)).ravel()
+        residuals = self.position_weights * (self.state.positions - self.problem.strand.points).ravel()
         problem, state = self.problem, self.state
         if problem.stability(p, q=state.q, frames=state.frames) >= problem.stability_margin:
             self.visited.append((0.5 * float(residuals @ residuals), p.copy()))
@@ -122,21 +127,21 @@ class StaticSag:
         with it or its transpose is one banded Cholesky solve and one sparse product, O(n)
         (``dense_jacobian`` forms the matrix, 3n x parameters)."""
         factor, scaled = self._linearization(p)
-        free, size = self.problem.free_index, self.problem.q_star.size
-        positions, weight = self.positions, self.position_weights
-        transposed = scaled.T.tocsr()
+        moving, rows, weight = self.moving, self.moving_rows, self.moving_weights
+        transposed, free_size = scaled.T.tocsr(), scaled.shape[0]
 
         def product(v):
-            moved = np.zeros(size)
-            moved[free] = band_solve(factor, scaled @ np.ravel(v))
-            return weight * moved[positions]
+            out = np.zeros(self.positions.size)
+            out[moving] = weight * band_solve(factor, scaled @ np.ravel(v))[rows]
+            return out
 
         def transposed_product(u):
-            pulled = np.zeros(size)
-            pulled[positions] = weight * np.ravel(u)
-            return transposed @ band_solve(factor, pulled[free])
+            pulled = np.zeros(free_size)
+            pulled[rows] = weight * np.ravel(u)[moving]
+            return transposed @ band_solve(factor, pulled)
 
-        return LinearOperator((positions.size, p.size), matvec=product, rmatvec=transposed_product, dtype=float)
+        return LinearOperator((self.positions.size, p.size), matvec=product, rmatvec=transposed_product,
+                              dtype=float)
 
     def dense_jacobian(self, p: np.ndarray) -> np.ndarray:
         """``jacobian(p)`` as a dense matrix, for strands whose matrix fits DENSE_BYTES: by rows, as
@@ -161,20 +166,15 @@ class StaticSag:
 
     def _weighted_rows(self, block_size: int | None = None):
         """(residual rows, (P^T W) on the free DOFs for them) in blocks of ``block_size`` (None: one
-        block): the right-hand sides whose K^-1 gives the Jacobian's rows. A prescribed position has
-        no sensitivity: its row stays zero and is not solved for."""
-        problem = self.problem
-        free = problem.free_index
-        row_of = np.full(problem.q_star.size, -1)
-        row_of[free] = np.arange(free.size)
-        rows, weight = row_of[self.positions], self.position_weights
-        moving = np.flatnonzero(rows >= 0)
-        size = moving.size if block_size is None else block_size
-        for start in range(0, moving.size, max(size, 1)):
-            block = moving[start:start + size]
-            unit = np.zeros((free.size, block.size))
-            unit[rows[block], np.arange(block.size)] = weight[block]
-            yield block, unit
+        block) over the moving rows: the right-hand sides whose K^-1 gives the Jacobian's rows (the
+        others stay zero)."""
+        free_size = self.problem.free_index.size
+        size = max(self.moving.size if block_size is None else block_size, 1)
+        for start in range(0, self.moving.size, size):
+            block = slice(start, start + size)
+            unit = np.zeros((free_size, self.moving[block].size))
+            unit[self.moving_rows[block], np.arange(unit.shape[1])] = self.moving_weights[block]
+            yield self.moving[block], unit
 
     def _linearization(self, p: np.ndarray):
         """(Cholesky factor of K, B) at the equilibrium of p (continued there if it is not the last

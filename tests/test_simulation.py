@@ -9,6 +9,7 @@ from sagfree.formulation import dofs
 from sagfree.formulation import simulation as S
 from sagfree.formulation.curvature import VARIANTS
 from sagfree.reports import experiments
+from sagfree.scenes.synthetic import resample
 
 SCENES = {
     "horizontal": lambda **kw: sagfree.scenes.horizontal(**kw),
@@ -106,10 +107,7 @@ def _long_hair(n_vertices: int = 100) -> sagfree.Problem:
     """Strand 5 of the default groom, five times as long: its naive parameters let it fall to hang."""
     strand = sagfree.scenes.default_groom()[5]
     points = strand.points[0] + 5.0 * (strand.points - strand.points[0])
-    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
-    even = np.linspace(0.0, arc[-1], n_vertices)
-    resampled = np.column_stack([np.interp(even, arc, points[:, k]) for k in range(3)])
-    return sagfree.Problem(strand.replaced(points=resampled, theta=None))
+    return sagfree.Problem(strand.replaced(points=resample(points, n_vertices), theta=None))
 
 
 def test_length_keeping_step_has_the_straight_steps_tangent_and_turns_edges_without_stretching_them():
