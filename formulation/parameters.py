@@ -503,3 +503,19 @@ class ParameterLayout:
         if block in _EDGE_BLOCKS:
             return within
         return within // _VERTEX_BLOCKS[block] + 1
+
+
+def number_ranges(numbers, most: int | None = None) -> str:
+    """'1-4, 7' from the element numbers [1, 2, 3, 4, 7] (any order, repeats ignored; the first
+    ``most`` runs and "and more" where there are more; a few dozen per message: plain Python beats
+    numpy's calls). Messages name elements with it (a stabilized strand's floors, an infeasible
+    strand's vertices)."""
+    runs: list[list[int]] = []
+    for number in sorted(set(np.asarray(numbers).tolist())):
+        if runs and number == runs[-1][1] + 1:
+            runs[-1][1] = number
+        else:
+            runs.append([number, number])
+    more = most is not None and len(runs) > most
+    listed = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs[:most])
+    return listed + (" and more" if more else "")

@@ -91,7 +91,14 @@ Crawl: an inner solve ends after INNER_STEPS Gauss-Newton steps and the outer lo
     SQP or Newton-SQP step, tried after one such round at a feasible p (NEWTON_AFTER = 1): the
     strands of groom(2, 2000, seed=0) took 20.5 Gauss-Newton steps instead of 123 (measurements
     in benchmarks/RESULTS.md, 2026-12-02).
-Infeasible: once mu has reached 10^4 mu0 and either the best box-constrained Gauss-Newton step for
+Infeasible: for a strand held by its root alone whose rest system is square, the least rest change
+    fixes what every element must carry, and where a vertex needs a bend multiplier above its box
+    or an edge's boxes cannot carry its stretch force, no p in the box balances the strand
+    (statics_start.unbalanceable, a certificate checked once at the start, exact up to a 1e-6
+    margin on the multiplier): the best effort below starts at once, from the linear start and
+    p0, and the message names those elements and the multiplier they need. (On a 2000-vertex long
+    hair the augmented Lagrangian otherwise took three quarters of the solve to find out.)
+    Elsewhere, once mu has reached 10^4 mu0 and either the best box-constrained Gauss-Newton step for
     |c|^2 alone reduces |c| by less than 1% (p is a stationary point of the constraint violation
     inside the box) or |c|_inf is still above STALLED_VIOLATION (the penalty crawls), the best effort
     takes over (least_residual): the parameters inside the box with the least residual
@@ -127,7 +134,7 @@ from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, 
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
 from .confirmed_start import confirmed_start
-from .statics_start import square_rest_system, statics_start
+from .statics_start import square_rest_system, statics_start, unbalanceable
 
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
 MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
@@ -138,6 +145,9 @@ NEWTON_ATTEMPTS = 3  # attempts per solve
 NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row at a feasible p
 NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
 NEWTON_HALVINGS = 8  # ... at most this many times (_newton_trial)
+#: how an infeasibility message tells the user to relax the bounds (API and command line)
+RELAX = ("Relax those bounds (bounds={block: (lower, upper)}, or curvature_budget / twist_budget for the "
+         "rest-shape boxes; command line: --bound BLOCK=LO,HI or --bound curvature_budget=VALUE)")
 
 
 class _Model:
@@ -234,6 +244,15 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         if distance <= kkt_tol:
             history.append(violation)
             return converged_at(violation, distance)
+    change = problem.remembered("least rest change") if start == "auto" and history else None
+    certificate = unbalanceable(problem, change) if change is not None else None
+    if certificate:  # no p in the box balances the strand: the best effort at once (module docstring, Infeasible)
+        history.append(violation)
+        p, c, J, verdict = _best_effort(problem, [p, problem.p0], counts, qp_rtol, tol, history,
+                                        certificate=certified(certificate))
+        if verdict:
+            return finish("infeasible", verdict)
+        violation = history.pop()  # within tol after all: the loop goes on from there (and records it)
     mu, omega = _initial_penalty(mu0, problem.objective(p), c), omega0
     scale = gradient_scale(model.w, J)
     lam = np.zeros(int(problem.free.sum()))
@@ -331,19 +350,12 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             if mu >= 1e4 * mu0:
                 verdict = _infeasibility(problem, p, c, J, lower, upper)
                 if verdict or violation > STALLED_VIOLATION:
-                    # best effort: the least residual the box allows, at the largest stiffness
-                    p, nearby = least_residual(problem, [p, problem.p0], counts, qp_rtol), None
-                    c, J = problem.residual(p), problem.strand_jacobian(p)
-                    scale = gradient_scale(model.w, J)
-                    history.append(float(np.abs(c).max(initial=0.0)))
-                    if history[-1] > tol:
-                        verdict = _infeasibility(problem, p, c, J, lower, upper) or verdict or (
-                            f"infeasible within bounds: |c|_inf stalls at {history[-1]:.3g} (a local minimum of "
-                            "the residual inside the box)")
-                        p = stiffest(problem, p)
-                        return finish("infeasible", verdict + "; best effort: the least residual force the box "
-                                      "allows, at the largest stiffness it allows")
+                    p, c, J, verdict = _best_effort(problem, [p, problem.p0], counts, qp_rtol, tol, history,
+                                                    fallback=verdict)
+                    if verdict:
+                        return finish("infeasible", verdict)
                     # the least residual balances gravity after all: go on from there
+                    nearby, scale = None, gradient_scale(model.w, J)
                     estimate = least_squares_multipliers(model.w * (p - model.p0), J, scale, p, lower, upper)
                     lam = estimate if np.all(np.isfinite(estimate)) else np.zeros_like(lam)
                     mu = _initial_penalty(mu0, problem.objective(p), c)
@@ -772,6 +784,29 @@ def _infeasibility(problem: Problem, p, c, J, lower, upper) -> str | None:
                         for what, elements in where.items())
     violation = float(np.abs(c).max())
     return (f"infeasible within bounds: |c|_inf stalls at {violation:.3g} (no parameters inside the box "
-            f"balance gravity). Binding: {details or 'none identified'}. Relax those bounds (bounds="
-            "{block: (lower, upper)}, or curvature_budget / twist_budget for the rest-shape boxes; command "
-            "line: --bound BLOCK=LO,HI or --bound curvature_budget=VALUE)")
+            f"balance gravity). Binding: {details or 'none identified'}. {RELAX}")
+
+
+def certified(certificate: str) -> str:
+    """The infeasibility message of a strand statics_start.unbalanceable certifies."""
+    return f"infeasible within bounds: no parameters inside the box balance gravity, {certificate}. {RELAX}"
+
+
+def _best_effort(problem: Problem, starts: list[np.ndarray], counts: dict, qp_rtol: float, tol: float,
+                 history: list, certificate: str | None = None, fallback: str | None = None):
+    """(p, c, J, message) after the best effort from ``starts`` (least_residual; its |c|_inf appended
+    to ``history``): where it leaves |c|_inf > tol, p the stiffest among the least-residual points
+    (rest_change.stiffest) and the ``infeasible`` message (the ``certificate``'s, else the bounds
+    that bind there, else ``fallback``) with what the best effort did; else the least-residual
+    point, c and J there, and None (it balances gravity after all)."""
+    lower, upper = problem.layout.lower, problem.layout.upper
+    p = least_residual(problem, starts, counts, qp_rtol)
+    c, J = problem.residual(p), problem.strand_jacobian(p)
+    history.append(float(np.abs(c).max(initial=0.0)))
+    if history[-1] <= tol:
+        return p, c, J, None
+    verdict = certificate or _infeasibility(problem, p, c, J, lower, upper) or fallback or (
+        f"infeasible within bounds: |c|_inf stalls at {history[-1]:.3g} (a local minimum of the residual inside "
+        "the box)")
+    return (stiffest(problem, p), c, J,
+            verdict + "; best effort: the least residual force the box allows, at the largest stiffness it allows")

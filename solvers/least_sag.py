@@ -14,18 +14,20 @@ Jacobian follows from the equilibrium itself: f(q_s, p) = 0 gives
 
 with c = D^-1 S f at q_s (``Problem.strand_jacobian(p, q, frames)``): one banded Cholesky of K per
 Jacobian. scipy's trust-region reflective least squares (``least_squares``, method "trf", which
-keeps every iterate inside the box; LSMR for its subproblems, where the exact solver's dense SVD
-grows like the cube of the size) takes the steps, in the variables' scales of the Jacobian's column
-norms (x_scale="jac"). The dense Jacobian (3n x parameters) grows like n^2, and so do its products
-in LSMR (capped at LSMR_ITERATIONS per step): above DENSE_BYTES (~670 vertices; at 2000, by their
-sizes, it and its intermediates would take ~2 GB) it is never formed but applied as an operator,
-each product with it or its transpose one pair of band triangular solves, O(n)
-(``StaticSag.jacobian``), and the scales are the column norms at the start, taken once (3n solves,
-``StaticSag.column_norms``: scipy updates "jac" scales only from a matrix; the operator at every
-size, so scaled, sagged more at 400 vertices, benchmarks/RESULTS.md). Each evaluation continues the
-equilibrium from the previous one (``equilibrium(start=...)``), so p moves along one branch of
-equilibria; where the continuation fails (CONTINUATION_STEPS Newton steps), the step was too long
-for it and the trust region shrinks. (A restart from q* follows the whole fall: ~7 times the
+keeps every iterate inside the box; LSMR for its subproblems, capped at LSMR_ITERATIONS, where the
+exact solver's dense SVD grows like the cube of the size) takes the steps. The Jacobian (3n x
+parameters) is never formed but applied as an operator, each product with it or its transpose one
+pair of band triangular solves, O(n) (``StaticSag.jacobian``): formed, it and its products grow
+like n^2 (at 2000 vertices ~2 GB with its intermediates). The steps are taken in the variables'
+scales of its column norms, which change by orders of magnitude as the multipliers reach their
+bounds; scipy renews scales ("jac") only from a matrix, so the minimization runs in rounds of
+RESCALE_EVALUATIONS evaluations, each in the column norms where it starts, estimated from
+NORM_PROBES random products (``StaticSag.estimated_column_norms``, Hutchinson's estimator, O(n)).
+(With the norms of the start alone the sag stayed twice as large above 400 vertices; the dense
+matrix with scipy's own scales sagged about as little, at n^2 cost: benchmarks/RESULTS.md.)
+Each evaluation continues the equilibrium from the previous one (``equilibrium(start=...)``), so p
+moves along one branch of equilibria; where the continuation fails (CONTINUATION_STEPS Newton
+steps), the step was too long for it and the trust region shrinks. (A restart from q* follows the whole fall: ~7 times the
 Newton steps at 100 vertices.)
 
 S weighs the whole strand, not only the vertex that moves most: smooth, and a Gauss-Newton problem;
@@ -59,14 +61,16 @@ MAX_EVALUATIONS = 60
 VERIFIED = 3
 #: Newton steps of a continued static solve before the step counts as too long.
 CONTINUATION_STEPS = 100
-#: Largest dense Jacobian (bytes) the minimization takes; above it (~670 vertices) the operator.
-DENSE_BYTES = 64 * 2**20
 #: LSMR iterations per trust-region step (scipy's default, min(3n, parameters), grows with the
 #: strand, and made LSMR half of a 400-vertex strand's time; the step only needs a direction better
 #: than the gradient's: capped, the sag was the same or less on the strands measured).
 LSMR_ITERATIONS = 30
 #: Right-hand sides per block of StaticSag.column_norms' solves.
 NORM_BLOCK = 256
+#: Evaluations between the operator path's rescalings (its column norms re-estimated where it is).
+RESCALE_EVALUATIONS = 5
+#: Random sign vectors of StaticSag.estimated_column_norms (Hutchinson's estimator).
+NORM_PROBES = 32
 
 
 @dataclass
@@ -144,7 +148,7 @@ class StaticSag:
                               dtype=float)
 
     def dense_jacobian(self, p: np.ndarray) -> np.ndarray:
-        """``jacobian(p)`` as a dense matrix, for strands whose matrix fits DENSE_BYTES: by rows, as
+        """``jacobian(p)`` as a dense matrix (the reference the operator is checked against): by rows, as
         (B^T K^-1 P^T W)^T (K is symmetric), K^-1 applied to the 3n weighted position rows at once
         (``band_solve_many``): half the right-hand sides of K^-1 B's columns (6n parameters)."""
         factor, scaled = self._linearization(p)
@@ -154,15 +158,28 @@ class StaticSag:
         return jacobian
 
     def column_norms(self, p: np.ndarray) -> np.ndarray:
-        """|jacobian(p)[:, j]|_2 for every parameter j: the rows of W P K^-1 B, solved NORM_BLOCK
-        at a time (K is symmetric: B^T K^-1 P^T W), their squares summed per column. 3n solves
-        once per minimization (the trust region's variable scales), in O(n NORM_BLOCK) memory."""
+        """|jacobian(p)[:, j]|_2 for every parameter j, exactly: the rows of W P K^-1 B, solved
+        NORM_BLOCK at a time (K is symmetric: B^T K^-1 P^T W), their squares summed per column.
+        3n solves, O(n^2): the reference ``estimated_column_norms`` is checked against."""
         factor, scaled = self._linearization(p)
         squares = np.zeros(p.size)
         for _, rows in self._weighted_rows(NORM_BLOCK):
             rows_of_jacobian = scaled.T @ band_solve_many(factor, rows)  # (parameters, block)
             squares += np.einsum("jk,jk->j", rows_of_jacobian, rows_of_jacobian)
         return np.sqrt(squares)
+
+    def estimated_column_norms(self, p: np.ndarray, probes: int = NORM_PROBES, seed: int = 0) -> np.ndarray:
+        """Hutchinson's estimate of the column norms: |J e_j|^2 = E[(J^T v)_j^2] over random signs v
+        (3n residual rows), averaged over ``probes`` draws (a fixed ``seed``: the same p gives the
+        same scales), each J^T v one band solve: O(n probes) where the exact norms take 3n solves.
+        Relative error about sqrt(2 / probes) (25% at 32), enough for variable scales that span
+        ~1e7 between the blocks."""
+        factor, scaled = self._linearization(p)
+        signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(self.moving.size, probes))
+        pulled = np.zeros((self.problem.free_index.size, probes))
+        pulled[self.moving_rows] = self.moving_weights[:, None] * signs
+        products = scaled.T @ band_solve_many(factor, pulled)  # (parameters, probes): J^T v
+        return np.sqrt(np.einsum("jk,jk->j", products, products) / probes)
 
     def _weighted_rows(self, block_size: int | None = None):
         """(residual rows, (P^T W) on the free DOFs for them) in blocks of ``block_size`` (None: one
@@ -208,18 +225,21 @@ def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUA
     p = np.clip(problem.check_parameters(p), lower, upper)
     start = equilibrium(problem, p)
     model = StaticSag(problem, start if start.converged else equilibrium(problem, problem.p0))
-    if 3 * problem.n_vertices * p.size * 8 <= DENSE_BYTES:
-        jacobian, scales = model.dense_jacobian, "jac"
-    else:  # the operator, in the scales of its column norms at the start (x_scale="jac" needs a matrix)
-        norms = model.column_norms(p)
-        jacobian, scales = model.jacobian, 1.0 / np.where(norms > 0, norms, 1.0)
-    try:
-        run = scipy.optimize.least_squares(model.residuals, p, jac=jacobian, bounds=(lower, upper), method="trf",
-                                           x_scale=scales, tr_solver="lsmr", tr_options={"maxiter": LSMR_ITERATIONS},
-                                           max_nfev=max_evaluations)
-        evaluations = int(run.nfev)
-    except ValueError:  # no equilibrium found at the start itself ("residuals are not finite")
-        evaluations = 1
+    evaluations, x = 0, p
+    while evaluations < max_evaluations:  # runs of RESCALE_EVALUATIONS, each in the column norms where it starts
+        norms = model.estimated_column_norms(x)
+        try:
+            run = scipy.optimize.least_squares(
+                model.residuals, x, jac=model.jacobian, bounds=(lower, upper), method="trf",
+                x_scale=1.0 / np.where(norms > 0, norms, 1.0), tr_solver="lsmr",
+                tr_options={"maxiter": LSMR_ITERATIONS}, max_nfev=min(RESCALE_EVALUATIONS, max_evaluations - evaluations))
+        except ValueError:  # no equilibrium found at the start itself ("residuals are not finite")
+            evaluations += 1
+            break
+        evaluations += int(run.nfev)
+        if np.array_equal(run.x, x):
+            break  # no step taken: a rescaling would not move it
+        x = run.x
     best, rest = p, start
     for _, candidate in sorted(model.visited, key=lambda visit: visit[0])[:VERIFIED]:
         candidate = np.clip(candidate, lower, upper)

@@ -34,13 +34,17 @@ vertex a little where it trades stiffness for rest change. Applies to per-elemen
 twist coupled to bend, every block optimized, no bodies, a clamped root and nothing else held
 (``applies``); ``None`` elsewhere, where the system is not square, or where a box admits no
 multiplier.
+
+The same decomposition proves infeasibility (``unbalanceable``): an element whose box admits no
+multiplier at the most favourable rest lengths the boxes allow cannot carry what the unique rest
+change asks of it, whatever the other parameters are, so no p in the box balances the strand.
 """
 from __future__ import annotations
 
 import numba
 import numpy as np
 
-from sagfree.formulation.parameters import BLOCKS, CONTACT_BLOCK, REST_BLOCKS
+from sagfree.formulation.parameters import BLOCKS, CONTACT_BLOCK, REST_BLOCKS, number_ranges
 from sagfree.formulation.problem import Problem
 from sagfree.linalg.band import column_norms
 
@@ -53,6 +57,10 @@ NEWTON_STEPS = 60
 EPS = float(np.finfo(float).eps)
 #: share of a box's width within which the start puts a value on the bound (onto_near_bound)
 NEAR_BOUND = 1e-12
+#: relative excess over its upper bound of a multiplier the balance needs that certifies infeasibility (unbalanceable)
+CERTAIN_EXCESS = 1e-6
+#: runs of elements an infeasibility certificate's message names
+CERTIFICATE_NAMES = 6
 
 
 def applies(problem: Problem) -> bool:
@@ -74,6 +82,58 @@ def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
     p = statics_optimum(np.ascontiguousarray(change, dtype=float), layout.p0, layout.weights, layout.lower,
                         layout.upper, *statics_indices(problem), problem.edge_lengths)
     return p if p.size else None
+
+
+def unbalanceable(problem: Problem, change: np.ndarray) -> str | None:
+    """Why no p in the box balances the strand, or None where some might (a certificate, not a test).
+
+    Where the rest system is square (square_rest_system), every vertex's z and every edge's stretch
+    force at unit stiffness are fixed by the least rest change ``change``, whatever the parameters
+    (module docstring). So an edge whose interval of b = a + t is empty (edge_intervals) cannot
+    carry its force inside its boxes, and a vertex whose needed multiplier at the smallest lbar-sum
+    scale its two edges allow, needed x scale, exceeds its bend multiplier's upper bound by more than
+    CERTAIN_EXCESS (the rounding of ``change`` is far below it) cannot keep its rest change inside
+    its box. The message names those elements (the first few) and what each needs, so a user knows
+    which bound to raise. asc then goes straight to the best effort (alm.solve_alm): on long hair
+    the augmented Lagrangian otherwise spent most of the solve finding the infeasibility itself.
+    """
+    if not square_rest_system(problem):
+        return None
+    layout = problem.layout
+    p0, lower, upper = layout.p0, layout.lower, layout.upper
+    rate, multiplier, bend, rest = statics_indices(problem)
+    t, low, high = edge_intervals(change, lower, upper, rate, multiplier)
+    _, _, needed = vertex_needs(change, p0, layout.weights, lower, upper, rest)
+    empty = np.flatnonzero(~((low > 0.0) & (low <= high)))
+    empty = empty[empty > 0]  # the root edge's rest length acts on no free DOF
+    # the smallest rest length u = -t / b each edge allows (the root edge's: its box), and the
+    # smallest lbar-sum scale of each vertex (lbar_v + lbar_v+1 over l_v + l_v+1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        least_u = np.where(t > 0.0, -t / low, np.where(t < 0.0, -t / high, 0.0))
+    least_u[0] = lower[rate[0]]
+    lengths = problem.edge_lengths
+    least_scale = ((lengths[:-1] * (1.0 + least_u[:-1]) + lengths[1:] * (1.0 + least_u[1:]))
+                   / (lengths[:-1] + lengths[1:]))
+    least_multiplier = needed * least_scale
+    short = np.flatnonzero(least_multiplier > upper[bend] * (1.0 + CERTAIN_EXCESS))
+    if empty.size == 0 and short.size == 0:
+        return None
+    parts = []
+    numbers = layout.element_numbers(np.concatenate([bend[short], multiplier[empty]]))
+    if short.size:
+        one = short.size == 1
+        parts.append(f"{short.size} {'vertex' if one else 'vertices'} "
+                     f"({number_ranges(numbers['bend_stiffness'], CERTIFICATE_NAMES)}) {'needs' if one else 'need'} a "
+                     f"bend_stiffness above its upper bound {upper[bend].max():.4g}, up to "
+                     f"{least_multiplier[short].max():.4g}, to keep {'its' if one else 'their'} rest change inside "
+                     "the rest_curvature and rest_twist box")
+    if empty.size:
+        one = empty.size == 1
+        parts.append(f"{empty.size} {'edge' if one else 'edges'} "
+                     f"({number_ranges(numbers['stretch_stiffness'], CERTIFICATE_NAMES)}) cannot carry "
+                     f"{'its' if one else 'their'} stretch force with stretch_stiffness and rest_length inside "
+                     "their boxes")
+    return "; ".join(parts)
 
 
 def statics_indices(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -109,27 +169,11 @@ def statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, l
     first sweep), then the vertices at the sums those edges give, until no edge multiplier moves."""
     p = p0.copy()
     edges, stencils = rate.size, bend.size
-    t, edge_low, edge_high = np.zeros(edges), np.zeros(edges), np.zeros(edges)
-    for e in range(1, edges):  # the acting edges: b = a + t in [low, high], u = -t / b
-        iu, ia = rate[e], multiplier[e]
-        t[e] = -change[iu]
-        low = lower[ia] + t[e]
-        for bound in (lower[iu], upper[iu]):
-            if bound != 0.0 and -t[e] / bound > 0.0:
-                low = max(low, -t[e] / bound)
-        edge_low[e], edge_high[e] = low, upper[ia] + t[e]
-        if not 0.0 < low <= edge_high[e]:
+    t, edge_low, edge_high = edge_intervals(change, lower, upper, rate, multiplier)
+    for e in range(1, edges):
+        if not 0.0 < edge_low[e] <= edge_high[e]:
             return np.empty(0)
-    unit_z, weighted, needed = np.empty((stencils, 3)), np.zeros(stencils), np.zeros(stencils)
-    for v in range(stencils):  # each vertex's z, its share's weight sum_j w_j z_j^2, its least multiplier per unit sum
-        for j in range(3):
-            i = rest[v, j]
-            z = change[i]
-            unit_z[v, j] = z
-            weighted[v] += w[i] * z * z
-            if z != 0.0:  # the multiplier per unit sum that keeps z / k in its box
-                width = upper[i] - p0[i] if z > 0.0 else lower[i] - p0[i]
-                needed[v] = max(needed[v], z / width if width != 0.0 else np.inf)
+    unit_z, weighted, needed = vertex_needs(change, p0, w, lower, upper, rest)
     scale, beta, slope_cost, coupling = np.empty(stencils), np.empty(stencils), np.empty(stencils), np.zeros(edges)
     for sweep in range(SWEEPS):
         moved_most = 0.0
@@ -175,6 +219,44 @@ def statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, l
     for k in range(p.size):
         p[k] = min(max(p[k], lower[k]), upper[k])
     return p
+
+
+@numba.njit(cache=True)
+def edge_intervals(change, lower, upper, rate, multiplier):  # pragma: no cover - compiled
+    """(t, low, high) per edge (statics_optimum's arrays): t = -u the stretch at unit stiffness of the
+    least rest change, and the interval [low, high] of b = a + t (a the edge's multiplier, u = -t / b
+    its rest length) that keeps both inside their boxes; the root edge's entries stay 0 (its rest
+    length acts on no free DOF)."""
+    edges = rate.size
+    t, edge_low, edge_high = np.zeros(edges), np.zeros(edges), np.zeros(edges)
+    for e in range(1, edges):
+        iu, ia = rate[e], multiplier[e]
+        t[e] = -change[iu]
+        low = lower[ia] + t[e]
+        for bound in (lower[iu], upper[iu]):
+            if bound != 0.0 and -t[e] / bound > 0.0:
+                low = max(low, -t[e] / bound)
+        edge_low[e], edge_high[e] = low, upper[ia] + t[e]
+    return t, edge_low, edge_high
+
+
+@numba.njit(cache=True)
+def vertex_needs(change, p0, w, lower, upper, rest):  # pragma: no cover - compiled
+    """(z, weighted, needed) per vertex (statics_optimum's arrays): its rest change z at unit stiffness
+    (S, 3), its share's weight sum_j w_j z_j^2, and the least multiplier per unit lbar-sum scale that
+    keeps z / k inside the rest box (inf where a box has no room on z's side)."""
+    stencils = rest.shape[0]
+    unit_z, weighted, needed = np.empty((stencils, 3)), np.zeros(stencils), np.zeros(stencils)
+    for v in range(stencils):
+        for j in range(3):
+            i = rest[v, j]
+            z = change[i]
+            unit_z[v, j] = z
+            weighted[v] += w[i] * z * z
+            if z != 0.0:
+                width = upper[i] - p0[i] if z > 0.0 else lower[i] - p0[i]
+                needed[v] = max(needed[v], z / width if width != 0.0 else np.inf)
+    return unit_z, weighted, needed
 
 
 @numba.njit(cache=True)

@@ -6,7 +6,7 @@ import sagfree
 from sagfree.contract.optimality import kkt_optimality
 from sagfree.formulation.problem import Problem
 from sagfree.solvers import alm
-from sagfree.solvers.statics_start import least_multiplier_scalar, statics_start
+from sagfree.solvers.statics_start import least_multiplier_scalar, statics_start, unbalanceable
 
 
 @pytest.mark.parametrize("index", [0, 3, 11])
@@ -101,3 +101,37 @@ def test_a_multiplier_without_weight_stays_finite():
     problem = Problem(sagfree.scenes.groom(3, 40, seed=0)[1], weights={"bend_stiffness": 0.0})
     start = alm.linear_start(problem)
     assert np.all(np.isfinite(start)) and kkt_optimality(problem, start) <= 1e-8
+
+
+def _needs(problem: Problem):
+    return unbalanceable(problem, alm._least_rest_change(problem))
+
+
+def test_the_infeasibility_certificate_is_tight():
+    """A bend bound just below the stiffest multiplier the balance needs is certified infeasible, and
+    the strand's solve goes straight to the best effort naming those vertices; just above it, the
+    certificate is silent and asc converges (the certificate claims nothing it cannot prove)."""
+    strand = sagfree.scenes.horizontal()
+    tight = Problem(strand, bounds={"bend_stiffness": (1.0, 2.0)})
+    message = _needs(tight)
+    assert message.startswith("10 vertices (1-10) need a bend_stiffness above its upper bound 2,")
+    needed = float(message.split("up to ")[1].split(",")[0])
+    assert 2.0 < needed < 100.0
+    result = sagfree.solve(tight)
+    assert result.status == "infeasible" and message in result.message
+    assert result.iterations["outer"] == 0 and result.iterations["gauss_newton"] == 0
+    assert result.iterations["least_residual"] > 0
+    below = Problem(strand, bounds={"bend_stiffness": (1.0, needed * (1.0 - 1e-3))})
+    assert _needs(below).startswith("1 vertex (1) needs a bend_stiffness")
+    above = Problem(strand, bounds={"bend_stiffness": (1.0, needed * (1.0 + 1e-3))})
+    assert _needs(above) is None
+    assert sagfree.solve(above).status == "converged"
+
+
+def test_the_certificate_is_silent_on_the_default_groom_and_where_it_does_not_apply():
+    """Every strand of the default groom is balanced (asc converges on each): no certificate; a pinned
+    tip (reactions unknown, the rest system not square) gets none either."""
+    for strand in sagfree.scenes.default_groom()[:20]:
+        assert _needs(Problem(strand)) is None
+    pinned = Problem(sagfree.scenes.horizontal(tip="pinned"), bounds={"bend_stiffness": (1.0, 1.0001)})
+    assert unbalanceable(pinned, np.zeros(pinned.n_parameters)) is None

@@ -53,7 +53,7 @@ import numpy as np
 
 from sagfree.contract.optimality import KKT_TOL, TOL
 from sagfree.contract.result import Result, make_result
-from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
+from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK, number_ranges
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
 from sagfree.linalg import timing
@@ -288,20 +288,8 @@ def _add(counts: dict, more: dict) -> dict:
 def _floors_note(problem: Problem, stabilized: Problem, rounds: int, before: float, after: float) -> str:
     """Where the stiffness floors rose, and what they cost in R."""
     raised = np.flatnonzero(stabilized.layout.lower > problem.layout.lower)
-    places = "; ".join(f"{block} at {'strand' if block == STRAND_BLOCK else _ranges(numbers)}"
+    places = "; ".join(f"{block} at {'strand' if block == STRAND_BLOCK else number_ranges(numbers)}"
                        for block, numbers in problem.layout.element_numbers(raised).items())
     change = (after - before) / before if before else np.inf
     return (f"; stabilized in {rounds} round{'s' if rounds != 1 else ''}: stiffness floors raised "
             f"({places or 'none'}), R {change:+.2%}")
-
-
-def _ranges(numbers: np.ndarray) -> str:
-    """'1-4, 7' from the element numbers [1, 2, 3, 4, 7] (any order, repeats ignored; a few dozen
-    per stabilized strand: plain Python beats numpy's calls)."""
-    runs: list[list[int]] = []
-    for number in sorted(set(numbers.tolist())):
-        if runs and number == runs[-1][1] + 1:
-            runs[-1][1] = number
-        else:
-            runs.append([number, number])
-    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs)
