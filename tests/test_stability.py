@@ -210,8 +210,7 @@ def test_least_sag_through_the_operator(long_strand):
     problem = sagfree.Problem(long_strand)
     start = stiffest(problem, problem.p0)
     effort = least_sag.least_sag(problem, start)
-    assert effort.evaluations > least_sag.RESCALE_EVALUATIONS  # more than one round
-    assert effort.evaluations > 1 and effort.rest.converged
+    assert effort.evaluations > least_sag.RESCALE_EVALUATIONS and effort.rest.converged  # more than one round
     assert np.all(effort.p >= problem.lower) and np.all(effort.p <= problem.upper)
     # its start (the stiffest p0) sags 0.41 of the strand's length, naive 1.03: the steps did the work
     assert effort.rest.relative_sag < 0.5 * effort.start.relative_sag
