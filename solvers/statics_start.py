@@ -93,8 +93,10 @@ def unbalanceable(problem: Problem, change: np.ndarray) -> str | None:
     carry its force inside its boxes, and a vertex whose needed multiplier at the smallest lbar-sum
     scale its two edges allow, needed x scale, exceeds its bend multiplier's upper bound by more than
     CERTAIN_EXCESS (the rounding of ``change`` is far below it) cannot keep its rest change inside
-    its box. The message names those elements (the first few) and what each needs, so a user knows
-    which bound to raise. asc then goes straight to the best effort (alm.solve_alm): on long hair
+    its box. The message names those elements (the first few runs) and the bend bound that holds
+    them: with every edge's interval non-empty, the rest lengths at their least scale and each
+    multiplier at max(lower, needed x scale) balance the strand, so the certificate is exact both
+    ways (up to CERTAIN_EXCESS). asc then goes straight to the best effort (alm.solve_alm): on long hair
     the augmented Lagrangian otherwise spent most of the solve finding the infeasibility itself.
     """
     if not square_rest_system(problem):
@@ -124,9 +126,9 @@ def unbalanceable(problem: Problem, change: np.ndarray) -> str | None:
         one = short.size == 1
         parts.append(f"{short.size} {'vertex' if one else 'vertices'} "
                      f"({number_ranges(numbers['bend_stiffness'], CERTIFICATE_NAMES)}) {'needs' if one else 'need'} a "
-                     f"bend_stiffness above its upper bound {upper[bend].max():.4g}, up to "
-                     f"{least_multiplier[short].max():.4g}, to keep {'its' if one else 'their'} rest change inside "
-                     "the rest_curvature and rest_twist box")
+                     f"bend_stiffness above its upper bound {upper[bend].max():.4g} to keep {'its' if one else 'their'} "
+                     "rest change inside the rest_curvature and rest_twist box; an upper bound of "
+                     f"{_rounded_up(least_multiplier[short].max())} holds {'it' if one else 'them'}")
     if empty.size:
         one = empty.size == 1
         parts.append(f"{empty.size} {'edge' if one else 'edges'} "
@@ -134,6 +136,15 @@ def unbalanceable(problem: Problem, change: np.ndarray) -> str | None:
                      f"{'its' if one else 'their'} stretch force with stretch_stiffness and rest_length inside "
                      "their boxes")
     return "; ".join(parts)
+
+
+def _rounded_up(x: float, digits: int = 4) -> str:
+    """x rounded up to ``digits`` significant digits, as text: a bound a message suggests must not
+    fall below what it is for."""
+    if not np.isfinite(x) or x <= 0.0:
+        return f"{x:g}"
+    unit = 10.0 ** (np.floor(np.log10(x)) - digits + 1)
+    return f"{np.ceil(x / unit) * unit:.{digits}g}"
 
 
 def statics_indices(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -108,24 +108,25 @@ def _needs(problem: Problem):
 
 
 def test_the_infeasibility_certificate_is_tight():
-    """A bend bound just below the stiffest multiplier the balance needs is certified infeasible, and
-    the strand's solve goes straight to the best effort naming those vertices; just above it, the
-    certificate is silent and asc converges (the certificate claims nothing it cannot prove)."""
+    """A bend bound below the stiffest multiplier the balance needs is certified infeasible, and the
+    strand's solve goes straight to the best effort naming those vertices; at the bound the message
+    suggests, the certificate is silent and asc converges (exact both ways: it claims nothing it
+    cannot prove, and its suggestion holds)."""
     strand = sagfree.scenes.horizontal()
     tight = Problem(strand, bounds={"bend_stiffness": (1.0, 2.0)})
     message = _needs(tight)
-    assert message.startswith("10 vertices (1-10) need a bend_stiffness above its upper bound 2,")
-    needed = float(message.split("up to ")[1].split(",")[0])
-    assert 2.0 < needed < 100.0
+    assert message.startswith("10 vertices (1-10) need a bend_stiffness above its upper bound 2 to keep")
+    suggested = float(message.split("an upper bound of ")[1].split()[0])
+    assert 2.0 < suggested < 100.0
     result = sagfree.solve(tight)
     assert result.status == "infeasible" and message in result.message
     assert result.iterations["outer"] == 0 and result.iterations["gauss_newton"] == 0
     assert result.iterations["least_residual"] > 0
-    below = Problem(strand, bounds={"bend_stiffness": (1.0, needed * (1.0 - 1e-3))})
+    below = Problem(strand, bounds={"bend_stiffness": (1.0, suggested * (1.0 - 1e-3))})
     assert _needs(below).startswith("1 vertex (1) needs a bend_stiffness")
-    above = Problem(strand, bounds={"bend_stiffness": (1.0, needed * (1.0 + 1e-3))})
-    assert _needs(above) is None
-    assert sagfree.solve(above).status == "converged"
+    at = Problem(strand, bounds={"bend_stiffness": (1.0, suggested)})
+    assert _needs(at) is None
+    assert sagfree.solve(at).status == "converged"
 
 
 def test_the_certificate_is_silent_on_the_default_groom_and_where_it_does_not_apply():
