@@ -361,8 +361,19 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                     mu = _initial_penalty(mu0, problem.objective(p), c)
         previous_violation = violation
         omega = max(target, 0.1 * omega)
-    return finish("max_iterations", f"stopped after {max_outer} outer iterations with |c|_inf = "
-                  f"{history[-1]:.3g} (target {tol:g}); raise max_outer (command line: --option max_outer=N)")
+    return finish("max_iterations", _max_outer_message(problem, p, history[-1], max_outer, tol, kkt_tol))
+
+
+def _max_outer_message(problem: Problem, p, violation: float, max_outer: int, tol: float, kkt_tol: float) -> str:
+    """The message of a solve that ran out of outer iterations: at a feasible p (in equilibrium,
+    as some strands with a held tip end) what is left is its KKT distance, which the message gives
+    so a user can judge the answer; elsewhere |c|_inf."""
+    if violation <= tol:
+        return (f"stopped after {max_outer} outer iterations at a feasible point (|c|_inf = {violation:.3g} <= "
+                f"{tol:g}) whose KKT distance {kkt_optimality(problem, p):.3g} stays above {kkt_tol:g}; raise "
+                "max_outer or kkt_tol (command line: --option max_outer=N or --option kkt_tol=X)")
+    return (f"stopped after {max_outer} outer iterations with |c|_inf = {violation:.3g} (target {tol:g}); raise "
+            "max_outer (command line: --option max_outer=N)")
 
 
 def converged_message(violation: float, distance: float, tol: float, kkt_tol: float, outer: int,

@@ -109,6 +109,16 @@ def test_over_tight_box_is_infeasible_quickly_with_a_clear_message():
     assert fixed.status == "infeasible" and "rest_curvature at its upper bound" in fixed.message
 
 
+def test_a_feasible_point_out_of_outer_iterations_reports_its_kkt_distance():
+    """A solve that runs out of outer iterations in equilibrium says so, with the KKT distance that
+    kept it from converging and the options (API and command line) that would move the limits."""
+    problem = sagfree.Problem(sagfree.scenes.horizontal(n=20))
+    result = sagfree.solve(problem, kkt_tol=1e-300, max_outer=3)  # no distance can reach it
+    assert result.status == "max_iterations" and "at a feasible point" in result.message
+    assert f"KKT distance {kkt_optimality(problem, result.p):.3g} stays above 1e-300" in result.message
+    assert "--option max_outer=N" in result.message and "--option kkt_tol=X" in result.message
+
+
 def test_result_summaries_and_repr():
     problem = sagfree.Problem(sagfree.scenes.horizontal(n=20))
     result = sagfree.solve(problem)
