@@ -96,8 +96,9 @@ Infeasible: for a strand held by its root alone whose rest system is square, the
     or an edge's boxes cannot carry its stretch force, no p in the box balances the strand
     (statics_start.unbalanceable, a certificate checked once at the start, exact up to a 1e-6
     margin on the multiplier): the best effort below starts at once, from the linear start and
-    p0, and the message names those elements and the bend bound that would hold them. (On a 2000-vertex long
-    hair the augmented Lagrangian otherwise took three quarters of the solve to find out.)
+    p0, and the message names those elements and the bend bound that would hold them. (On a
+    2000-vertex long hair the augmented Lagrangian otherwise took three quarters of the solve to
+    find out.)
     Elsewhere, once mu has reached 10^4 mu0 and either the best box-constrained Gauss-Newton step for
     |c|^2 alone reduces |c| by less than 1% (p is a stationary point of the constraint violation
     inside the box) or |c|_inf is still above STALLED_VIOLATION (the penalty crawls), the best effort
