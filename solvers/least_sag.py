@@ -67,7 +67,7 @@ CONTINUATION_STEPS = 100
 LSMR_ITERATIONS = 30
 #: Right-hand sides per block of StaticSag.column_norms' solves.
 NORM_BLOCK = 256
-#: Evaluations between the operator path's rescalings (its column norms re-estimated where it is).
+#: Evaluations between rescalings (the Jacobian's column norms re-estimated where the minimization is).
 RESCALE_EVALUATIONS = 5
 #: Random sign vectors of StaticSag.estimated_column_norms (Hutchinson's estimator).
 NORM_PROBES = 32
@@ -132,7 +132,7 @@ class StaticSag:
         (``dense_jacobian`` forms the matrix, 3n x parameters)."""
         factor, scaled = self._linearization(p)
         moving, rows, weight = self.moving, self.moving_rows, self.moving_weights
-        transposed, free_size = scaled.T.tocsr(), scaled.shape[0]
+        transposed = scaled.T.tocsr()
 
         def product(v):
             out = np.zeros(self.positions.size)
@@ -140,9 +140,7 @@ class StaticSag:
             return out
 
         def transposed_product(u):
-            pulled = np.zeros(free_size)
-            pulled[rows] = weight * np.ravel(u)[moving]
-            return transposed @ band_solve(factor, pulled)
+            return transposed @ band_solve(factor, self._pulled(np.ravel(u)[moving]))
 
         return LinearOperator((self.positions.size, p.size), matvec=product, rmatvec=transposed_product,
                               dtype=float)
@@ -176,10 +174,15 @@ class StaticSag:
         ~1e7 between the blocks."""
         factor, scaled = self._linearization(p)
         signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(self.moving.size, probes))
-        pulled = np.zeros((self.problem.free_index.size, probes))
-        pulled[self.moving_rows] = self.moving_weights[:, None] * signs
-        products = scaled.T @ band_solve_many(factor, pulled)  # (parameters, probes): J^T v
+        products = scaled.T @ band_solve_many(factor, self._pulled(signs))  # (parameters, probes): J^T v
         return np.sqrt(np.einsum("jk,jk->j", products, products) / probes)
+
+    def _pulled(self, values: np.ndarray) -> np.ndarray:
+        """(P^T W) values on the free DOFs: the moving residual rows' ``values`` (one row each, any
+        columns) weighted and placed at their DOFs' rows of K, zero elsewhere."""
+        pulled = np.zeros((self.problem.free_index.size,) + values.shape[1:])
+        pulled[self.moving_rows] = self.moving_weights.reshape((-1,) + (1,) * (values.ndim - 1)) * values
+        return pulled
 
     def _weighted_rows(self, block_size: int | None = None):
         """(residual rows, (P^T W) on the free DOFs for them) in blocks of ``block_size`` (None: one
