@@ -10,6 +10,10 @@ Outer loop (augmented Lagrangian, PERMON SMALXE-style accounting):
     otherwise mu <- 10 mu. mu starts at ALGENCAN's scale-free value, floored at mu0
     (_initial_penalty). Gauss-Newton omits lam^T c'', so the usable range of mu narrows as the
     bending modes soften with n: mu0 = 100 is the floor that works from 25 to 800 vertices.
+    Where the saddle system is a band (every problem without a strand multiplier), the outer
+    iterations run as compiled calls (solvers.outer_loop) that hand back to this loop only for
+    Newton-SQP and the infeasibility test (below); the loop here is the same arithmetic, for the
+    rest.
 Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu J^T J (damped,
     _Model.hessian); each step solves the box QP
     min g^T d + 1/2 d^T H d,  lower - p <= d <= upper - p  by MPRGP, preconditioned by the active-set
@@ -133,17 +137,14 @@ from . import gauss_newton
 from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, DAMPING, INNER_STEPS, MAX_ITERATIONS,
                            MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
 from .mprgp import PRECONDITIONERS, solve_box_qp
+from . import outer_loop
 from .multipliers import least_squares_multipliers
+from .outer_loop import MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_NEAR, SQP_DECREASE
 from .confirmed_start import confirmed_start
 from .statics_start import square_rest_system, statics_start, unbalanceable
 
-SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (_sqp_step)
-MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
 STALLED_VIOLATION = 1e-3  # |c|_inf above which a penalty of 1e4 mu0 hands over to least_residual
-NEWTON_NEAR = 1e-4  # |c|_inf at or below which a stalled constraint whose SQP step fails gets Newton-SQP
 NEWTON_STEPS = 12  # exact-Hessian SQP steps per attempt (module docstring, Newton-SQP)
-NEWTON_ATTEMPTS = 3  # attempts per solve
-NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row at a feasible p
 NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
 NEWTON_HALVINGS = 8  # ... at most this many times (_newton_trial)
 #: how an infeasibility message tells the user to relax the bounds (API and command line)
@@ -265,75 +266,86 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     at_lower, at_upper = p <= lower, p >= upper
     nearby = None  # the last SQP step's factorization while p is its point (kkt_optimality)
     compiled = gauss_newton.available(problem)
+    compiled_outer = outer_loop.available(problem)
 
     while counts["outer"] < max_outer:
-        counts["outer"] += 1
-        # ---- inner: Gauss-Newton on the augmented Lagrangian (compiled where it can be) ----
-        steps_before = counts["gauss_newton"]
-        state = InnerState(p, c, J, scale, at_lower, at_upper)
-        inner = gauss_newton.inner_solve if compiled else _inner_solve_python
-        reason, qp_status, optimality, stalled, moved = inner(
-            problem, model, state, lam, mu, omega, tol, max_iterations, clock + max_seconds, qp_rtol, preconditioner,
-            counts, history)
-        p, c, J, scale, at_lower, at_upper = state.p, state.c, state.J, state.scale, state.at_lower, state.at_upper
-        nearby = None if moved else nearby
-        if reason == MAX_ITERATIONS:
-            return finish("max_iterations", f"stopped after {max_iterations} Gauss-Newton steps "
-                          f"with |c|_inf = {history[-1]:.3g}; raise max_iterations (command line: "
-                          "--option max_iterations=N)")
-        if reason == MAX_SECONDS:
-            return finish("max_iterations", f"stopped after {time.perf_counter() - clock:.3g} s "
-                          f"(max_seconds) and {counts['gauss_newton']} Gauss-Newton steps with "
-                          f"|c|_inf = {history[-1]:.3g}")
-        if reason == QP_FAILED:
-            return finish("failed", f"the Gauss-Newton QP failed ({qp_status}) at step "
-                          f"{counts['gauss_newton']}")
+        event = None
+        if compiled_outer:
+            # the outer iterations in one compiled call, up to an event (solvers.outer_loop)
+            stop = outer_loop.outer_iterations(
+                problem, model, p, c, J, scale, lam, at_lower, at_upper, mu, omega, target, previous_violation,
+                feasible_rounds, attempts, nearby, tol, kkt_tol, gradient_tol, max_outer, max_iterations,
+                clock + max_seconds, mu0, mu_growth, qp_rtol, preconditioner, counts, history)
+            (p, c, J, scale, lam, at_lower, at_upper, mu, omega, target, previous_violation, feasible_rounds,
+             nearby) = (stop.p, stop.c, stop.J, stop.scale, stop.lam, stop.at_lower, stop.at_upper, stop.mu,
+                        stop.omega, stop.target, stop.previous_violation, stop.feasible_rounds, stop.nearby)
+            violation, distance, converged, stalls = stop.violation, stop.distance, stop.converged, stop.stalls
+            event = stop.event
+            if event == outer_loop.OUT_OF_OUTER:
+                break
+            if event == outer_loop.INNER_STOPPED:
+                return finish(*_inner_stop(stop.reason, stop.qp_status, max_iterations, clock, counts, history))
+            # the rest of this iteration (convergence, Newton-SQP, the infeasibility test) is below
+        else:
+            counts["outer"] += 1
+            # ---- inner: Gauss-Newton on the augmented Lagrangian (compiled where it can be) ----
+            steps_before = counts["gauss_newton"]
+            state = InnerState(p, c, J, scale, at_lower, at_upper)
+            inner = gauss_newton.inner_solve if compiled else _inner_solve_python
+            reason, qp_status, optimality, stalled, moved = inner(
+                problem, model, state, lam, mu, omega, tol, max_iterations, clock + max_seconds, qp_rtol,
+                preconditioner, counts, history)
+            p, c, J, scale, at_lower, at_upper = state.p, state.c, state.J, state.scale, state.at_lower, state.at_upper
+            nearby = None if moved else nearby
+            if reason in (MAX_ITERATIONS, MAX_SECONDS, QP_FAILED):
+                return finish(*_inner_stop(reason, qp_status, max_iterations, clock, counts, history))
 
-        # ---- outer: multipliers, penalty, convergence ----
-        violation = float(np.abs(c).max(initial=0.0))
-        if counts["gauss_newton"] == steps_before and violation > tol and omega > target:
-            # the inner target was met without a step (the loose first one, from p0): a multiplier
-            # update there only adds mu c to lam, which grew |lam| to ~1e3 in four such rounds
-            # before the first step and made Gauss-Newton crawl; tighten the target instead, at once
-            # as far as the next inner solves would stop without a step again (same p, lam and mu)
-            omega = max(target, 0.1 * omega)
-            while omega > target and optimality <= omega:
+            # ---- outer: multipliers, penalty, convergence ----
+            violation = float(np.abs(c).max(initial=0.0))
+            if counts["gauss_newton"] == steps_before and violation > tol and omega > target:
+                # the inner target was met without a step (the loose first one, from p0): a multiplier
+                # update there only adds mu c to lam, which grew |lam| to ~1e3 in four such rounds
+                # before the first step and made Gauss-Newton crawl; tighten the target instead, at once
+                # as far as the next inner solves would stop without a step again (same p, lam and mu)
                 omega = max(target, 0.1 * omega)
-            continue
-        lam = lam + mu * c
-        regularizer_gradient = model.w * (p - model.p0)
-        optimality = scaled_projected_gradient(p, regularizer_gradient + J.T @ lam, scale, lower, upper)
-        if violation <= tol and optimality > gradient_tol:
-            # the first-order update may lag behind a feasible p: try the least-squares multipliers
-            estimate = least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper)
-            kkt = scaled_projected_gradient(p, regularizer_gradient + J.T @ estimate, scale, lower, upper)
-            if kkt < optimality:
-                lam, optimality = estimate, kkt
-        # a stalled inner loop on a feasible p: only the KKT distance can tell (below)
-        converged = violation <= tol and (optimality <= gradient_tol or stalled >= STALL)
-        if converged:
-            # the scaled gradient can be small in a flat valley away from the optimum: confirm with
-            # the KKT distance of contract.optimality, and tighten the inner target if it disagrees
-            # where the inner loop reached it (the distance decides once the target is below rounding)
-            distance = kkt_optimality(problem, p, nearby=nearby)
-            converged = distance <= kkt_tol
-            if not converged and (optimality <= target or stalled >= STALL):
-                counts["tightened"] += 1
-                target = max(1e-3 * target, MIN_TARGET)
-        crawled = violation <= tol and counts["gauss_newton"] > steps_before
-        feasible_rounds = feasible_rounds + 1 if crawled else 0
-        stalls = violation > tol and violation > 0.25 * previous_violation
-        if stalls:  # before growing mu, try the constrained step (SQP)
-            sqp = _sqp_step(problem, model, p, c, J, SQP_DECREASE * violation, tol)
-            if sqp is not None:
-                counts["sqp"] += 1
-                p, c, lam, nearby = sqp
-                J = problem.strand_jacobian(p)
-                scale = gradient_scale(model.w, J)
-                history.append(float(np.abs(c).max(initial=0.0)))
-                previous_violation = violation
+                while omega > target and optimality <= omega:
+                    omega = max(target, 0.1 * omega)
                 continue
-        # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it (module docstring)
+            lam = lam + mu * c
+            regularizer_gradient = model.w * (p - model.p0)
+            optimality = scaled_projected_gradient(p, regularizer_gradient + J.T @ lam, scale, lower, upper)
+            if violation <= tol and optimality > gradient_tol:
+                # the first-order update may lag behind a feasible p: try the least-squares multipliers
+                estimate = least_squares_multipliers(regularizer_gradient, J, scale, p, lower, upper)
+                kkt = scaled_projected_gradient(p, regularizer_gradient + J.T @ estimate, scale, lower, upper)
+                if kkt < optimality:
+                    lam, optimality = estimate, kkt
+            # a stalled inner loop on a feasible p: only the KKT distance can tell (below)
+            converged = violation <= tol and (optimality <= gradient_tol or stalled >= STALL)
+            if converged:
+                # the scaled gradient can be small in a flat valley away from the optimum: confirm with
+                # the KKT distance of contract.optimality, and tighten the inner target if it disagrees
+                # where the inner loop reached it (the distance decides once the target is below rounding)
+                distance = kkt_optimality(problem, p, nearby=nearby)
+                converged = distance <= kkt_tol
+                if not converged and (optimality <= target or stalled >= STALL):
+                    counts["tightened"] += 1
+                    target = max(1e-3 * target, MIN_TARGET)
+            crawled = violation <= tol and counts["gauss_newton"] > steps_before
+            feasible_rounds = feasible_rounds + 1 if crawled else 0
+            stalls = violation > tol and violation > 0.25 * previous_violation
+            if stalls:  # before growing mu, try the constrained step (SQP)
+                sqp = _sqp_step(problem, model, p, c, J, SQP_DECREASE * violation, tol)
+                if sqp is not None:
+                    counts["sqp"] += 1
+                    p, c, lam, nearby = sqp
+                    J = problem.strand_jacobian(p)
+                    scale = gradient_scale(model.w, J)
+                    history.append(float(np.abs(c).max(initial=0.0)))
+                    previous_violation = violation
+                    continue
+        # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it (module
+        # docstring); where the compiled loop stopped for it, this test holds again (the same values)
         if (not converged and attempts < NEWTON_ATTEMPTS
                 and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= NEWTON_NEAR))):
             attempts, feasible_rounds = attempts + 1, 0
@@ -347,7 +359,8 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         if converged:
             return converged_at(violation, distance)
         if stalls:
-            mu *= mu_growth
+            if event != outer_loop.INFEASIBILITY:  # where it is, the compiled loop grew mu already
+                mu *= mu_growth
             if mu >= 1e4 * mu0:
                 verdict = _infeasibility(problem, p, c, J, lower, upper)
                 if verdict or violation > STALLED_VIOLATION:
@@ -363,6 +376,18 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         previous_violation = violation
         omega = max(target, 0.1 * omega)
     return finish("max_iterations", _max_outer_message(problem, p, history[-1], max_outer, tol, kkt_tol))
+
+
+def _inner_stop(reason: int, qp_status: str, max_iterations: int, clock: float, counts: dict,
+                history: list) -> tuple[str, str]:
+    """(status, message) of a solve whose inner solve stopped at a limit or failed (``reason``)."""
+    if reason == MAX_ITERATIONS:
+        return "max_iterations", (f"stopped after {max_iterations} Gauss-Newton steps with |c|_inf = "
+                                  f"{history[-1]:.3g}; raise max_iterations (command line: --option max_iterations=N)")
+    if reason == MAX_SECONDS:
+        return "max_iterations", (f"stopped after {time.perf_counter() - clock:.3g} s (max_seconds) and "
+                                  f"{counts['gauss_newton']} Gauss-Newton steps with |c|_inf = {history[-1]:.3g}")
+    return "failed", f"the Gauss-Newton QP failed ({qp_status}) at step {counts['gauss_newton']}"
 
 
 def _max_outer_message(problem: Problem, p, violation: float, max_outer: int, tol: float, kkt_tol: float) -> str:

@@ -103,7 +103,7 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
     steps = np.empty(INNER_STEPS + 1)
     clock, clock_id = timing.CLOCK
     deadline -= timing.clock_offset()  # on the loop's clock
-    (reason, qp_status, optimality, stalled, moved, recorded, p, c, f, values, scale) = _inner(
+    (reason, qp_status, optimality, stalled, moved, recorded, p, c, f, values, scale) = inner_loop(
         forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, model.w, model.p0,
         lower, upper, p, c, data, scale, lam, float(mu),
         float(omega), float(tol), int(max_iterations), float(deadline), float(qp_rtol),
@@ -197,10 +197,11 @@ def _lagrangian_optimality(w, p, p0, indptr, indices, data, lam, mu, c, scale, l
 
 
 @numba.njit(cache=True)
-def _inner(forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, w, p0, lower, upper, p, c,
-           values, scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border,
-           active_set_steps, walking, at_lower, at_upper, counts, seconds, steps):  # pragma: no cover
-    """The loop of ``inner_solve`` (alm._inner_solve_python line by line); counts in COUNTED order,
+def inner_loop(forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, w, p0, lower, upper, p, c,
+               values, scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border,
+               active_set_steps, walking, at_lower, at_upper, counts, seconds, steps):  # pragma: no cover
+    """The loop of ``inner_solve`` (alm._inner_solve_python line by line; solvers.outer_loop calls it
+    directly, whose first test is inner_solve's own); counts in COUNTED order,
     seconds [model, linear algebra] accumulated, steps receives |c|_inf after each accepted step.
     Returns (reason, QP status, optimality, stalled, moved, steps recorded, p, c, f, values, scale)."""
     csc_indptr, csc_indices, csr_indptr, csr_indices, csr_order = structure

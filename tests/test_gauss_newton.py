@@ -1,5 +1,6 @@
-"""asc's compiled inner loop (solvers.gauss_newton) against its Python form (alm._inner_solve_python):
-the same steps, so the same p bit for bit, the same counts and history; its stops and its clock."""
+"""asc's compiled inner and outer loops (solvers.gauss_newton, solvers.outer_loop) against their Python
+form (alm._inner_solve_python, solve_alm's loop): the same steps, so the same p bit for bit, the same
+counts and history; their stops and their clock."""
 import time
 
 import numpy as np
@@ -10,7 +11,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
 from sagfree.linalg.pairwise import pairwise_sum
 from sagfree.scenes.head import HEAD, head_groom
-from sagfree.solvers import alm, gauss_newton
+from sagfree.solvers import alm, gauss_newton, outer_loop
 
 
 def solved_both_ways(monkeypatch, problem, **options):
@@ -31,9 +32,17 @@ def solved_both_ways(monkeypatch, problem, **options):
     (lambda: sagfree.scenes.horizontal(n=50, tip="pinned"), {}),
     (lambda: sagfree.scenes.cable(n=30), {}),
     (lambda: head_groom(1, 60, seed=4)[0], {"bodies": [HEAD]}),
-], ids=["element", "strand", "three-vertices", "curly-2d", "tip-pinned", "cable", "on-the-head"])
-def test_compiled_and_python_inner_loops_take_the_same_steps(monkeypatch, strand, options):
-    assert_the_same_steps(monkeypatch, Problem(strand(), **options))
+    (lambda: sagfree.scenes.horizontal(n=200, pins=[100]), {}),
+    (lambda: sagfree.scenes.horizontal(), {"bounds": {"bend_stiffness": (1.0, 2.0)}}),
+], ids=["element", "strand", "three-vertices", "curly-2d", "tip-pinned", "cable", "on-the-head", "interior-pin",
+        "infeasible"])
+def test_compiled_and_python_loops_take_the_same_steps(monkeypatch, strand, options):
+    """Where the saddle system is a band the outer loop is compiled too (solvers.outer_loop), and it
+    hands Newton-SQP (tip-pinned; interior-pin, where an attempt fails and the compiled loop goes on) and
+    the infeasibility test (infeasible) back to Python."""
+    problem = Problem(strand(), **options)
+    assert outer_loop.available(problem) == (options.get("stiffness") != "strand")
+    assert_the_same_steps(monkeypatch, problem)
 
 
 def test_compiled_and_python_inner_loops_take_the_same_steps_with_friction(monkeypatch, tilted):
@@ -75,19 +84,19 @@ def test_the_compiled_loop_counts_its_model_and_linear_algebra_time():
     problem = Problem(sagfree.scenes.groom(1, 50, seed=3)[0])
     alm.solve_alm(problem, start="linear")  # compiled and loaded
     calls = []
-    inner = gauss_newton._inner
+    outer = outer_loop._outer
 
     def recorded(*args):
-        out = inner(*args)
+        out = outer(*args)
         calls.append(args[-2].copy())  # the loop's [model, linear algebra] seconds
         return out
 
     mark = timing.snapshot()
     try:
-        gauss_newton._inner = recorded
+        outer_loop._outer = recorded
         result = alm.solve_alm(problem, start="linear")
     finally:
-        gauss_newton._inner = inner
+        outer_loop._outer = outer
     spent = timing.split_since(mark, result.time)
     inside = np.sum(calls, axis=0)
     assert inside[0] > 0 and inside[1] > 0

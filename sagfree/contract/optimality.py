@@ -17,7 +17,8 @@ from sagfree.formulation.problem import Problem
 from sagfree.linalg import lapack
 from sagfree.linalg.band import column_norms, csc_arrays
 from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
-from sagfree.linalg.saddle import band_order, constrained_step, plain_band_step
+from sagfree.linalg.saddle import (REFINED, REFINEMENTS, band_order, constrained_step, no_band_factors,
+                                   plain_band_step, refined_band_solution)
 from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
 #: |c|_inf (unit-free) at or below which a strand is in equilibrium (DESIGN section 4).
@@ -133,6 +134,18 @@ def band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regula
     ``position``) and no nearby factorization is offered: its loop line by line, the same
     arithmetic, in one compiled call (J in compressed columns; callable from compiled code, as
     solvers.confirmed_start calls it)."""
+    return nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p,
+                                    lower, upper, near, no_band_factors())
+
+
+@numba.njit(cache=True)
+def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower,
+                             upper, near, nearby):  # pragma: no cover - compiled
+    """``band_kkt_distance`` with ``kkt_optimality``'s ``nearby``: the band factors of a saddle
+    system at a nearby p (linalg.saddle.band_factors' tuple, as SaddleFactor holds them: no
+    curvature, the same w), tried first by iterative refinement where its free set is the first
+    working set (linalg.saddle.constrained_step); no_band_factors() where there are none."""
+    factors, half, pivots, kept, reduced, nearby_free = nearby
     n = p.size
     scale = w + csc_column_norms(indptr, data) + 1e-300  # gradient_scale
     at_lower, active = np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_)
@@ -142,9 +155,20 @@ def band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regula
         active[j] = not ((p[j] - lower[j] > slack) and (upper[j] - p[j] > slack))
     threshold = 1e-3 * KKT_TOL
     step, gradient, wrong, solved = np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_), False
+    refine = factors.size > 0
+    for j in range(n):
+        refine &= nearby_free[j] == (not active[j])
     for _ in range(10):
-        singular, d, lam = plain_band_step(dgbtrf, dgbtrs, indptr, indices, data, w, ~active, position,
-                                           regularizer_gradient, c)
+        singular, refined = False, False
+        d, lam = np.empty(0), np.empty(0)
+        if refine:  # a changed working set needs its own factorization
+            refine = False
+            refined, d, lam = refined_band_solution(dgbtrs, factors, half, pivots, kept, reduced, indptr, indices,
+                                                     data, w, ~active, regularizer_gradient, c, REFINED_DISTANCE,
+                                                     REFINEMENTS, REFINED)
+        if not refined:
+            singular, d, lam = plain_band_step(dgbtrf, dgbtrs, indptr, indices, data, w, ~active, position,
+                                               regularizer_gradient, c)
         if singular:  # too few free directions: free the variables near but not on a bound
             loose = False
             for j in range(n):

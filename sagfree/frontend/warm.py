@@ -9,7 +9,7 @@ its parent's), ``sagfree.solve`` before its first call. What stays per strand si
 instance for a new size) is the solver's own ``Result.setup_time``, kept out of ``Result.time``.
 Strands resting on bodies run further compiled code (contact detection and forces, stability on the
 bodies' tangent planes): with bodies, the warm-up strand rests on the first of them. A solver's
-``warm_paths`` solve the strand again along paths its own solve skips (asc's Gauss-Newton loop: the
+``warm_paths`` solve the strand again along paths its own solve skips (asc's compiled outer loop: the
 warm-up strand, held by its root alone, starts at its optimum, and the first strand that needed a
 Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
 prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP,

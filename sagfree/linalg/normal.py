@@ -73,10 +73,19 @@ def _seminormal_least_squares(indptr, indices, data, rows, gradient, scale, free
     """``seminormal_least_squares``: None where a free column has more than dense_entries entries
     (band.dense_count)."""
     n = indptr.size - 1
-    weights = np.empty(n)
     for j in range(n):
         if free[j] and indptr[j + 1] - indptr[j] > dense_entries:
             return None
+    return seminormal_kernel(indptr, indices, data, rows, gradient, scale, free, shift)
+
+
+@numba.njit(cache=True)
+def seminormal_kernel(indptr, indices, data, rows, gradient, scale, free, shift):  # pragma: no cover - compiled
+    """``seminormal_least_squares``'s steps where no free column is dense, callable from compiled
+    code (asc's compiled outer loop)."""
+    n = indptr.size - 1
+    weights = np.empty(n)
+    for j in range(n):
         weights[j] = 1.0 / scale[j]
     factor, definite = _factored_normal(indptr, indices, data, rows, weights, free, shift)
     lam = np.zeros(rows)

@@ -95,7 +95,7 @@ class SaddleFactor:
         gradient, c = np.asarray(gradient, dtype=float), np.asarray(c, dtype=float)
         if self._band:  # the loop below in one compiled call, the same arithmetic
             indptr, indices, data = csc_arrays(J)
-            converged, d, lam = _refined_band_solution(
+            converged, d, lam = refined_band_solution(
                 lapack.DGBTRS, self._lu, self._half, self._pivots, self._kept, self._position, indptr, indices,
                 data, np.ascontiguousarray(self.w, dtype=float), self.free, np.ascontiguousarray(gradient),
                 np.ascontiguousarray(c), accuracy, REFINEMENTS, REFINED)
@@ -142,6 +142,39 @@ def plain_band_step(dgbtrf, dgbtrs, indptr, indices, data, w, free, position, gr
         return True, np.empty(0), np.empty(0)
     d, lam = _band_solution(dgbtrs, band, half, pivots, kept, reduced, gradient, c, n, rows)
     return False, d, lam
+
+
+@numba.njit(cache=True)
+def band_factors(dgbtrf, indptr, indices, data, w, free, position):  # pragma: no cover - compiled
+    """(factors, half-bandwidth, pivots, kept, reduced positions, free) of ``SaddleFactor(J, w,
+    free)`` without curvature, as it holds them, for compiled code (J in compressed columns,
+    ``position`` from ``band_order``); no_band_factors() where the system is singular."""
+    n, rows = indptr.size - 1, position.size - (indptr.size - 1)
+    count = 0
+    for j in range(n):
+        count += free[j]
+    if count < rows:
+        return no_band_factors()
+    none = np.zeros(0, dtype=np.int64)
+    kept, reduced, half, band, pivots, info = _factored_band(dgbtrf, indptr, indices, data, w, free, position, none,
+                                                             none, np.zeros(0))
+    if info != 0:
+        return no_band_factors()
+    return band, half, pivots, kept, reduced, free.copy()
+
+
+@numba.njit(cache=True)
+def solve_band_factors(dgbtrs, factors, gradient, c):  # pragma: no cover - compiled
+    """(d, lam) of SaddleFactor.solve from ``band_factors``' tuple."""
+    band, half, pivots, kept, reduced, _ = factors
+    return _band_solution(dgbtrs, band, half, pivots, kept, reduced, gradient, c, gradient.size, c.size)
+
+
+@numba.njit(cache=True)
+def no_band_factors():  # pragma: no cover - compiled
+    """``band_factors``' tuple of no factorization (its factors empty)."""
+    return (np.empty((0, 0)), np.int64(0), np.empty(0, dtype=np.int32), np.empty(0, dtype=np.int64),
+            np.empty(0, dtype=np.int64), np.empty(0, dtype=np.bool_))
 
 
 #: corrections of SaddleFactor.solve_nearby before it gives up, and the relative size of a last
@@ -248,7 +281,7 @@ def _band_solution(dgbtrs, factors, half, pivots, kept, position, gradient, c, n
 
 
 @numba.njit(cache=True)
-def _refined_band_solution(dgbtrs, factors, half, pivots, kept, position, indptr, indices, data, w, free, gradient,
+def refined_band_solution(dgbtrs, factors, half, pivots, kept, position, indptr, indices, data, w, free, gradient,
                            c, accuracy, refinements, refined):  # pragma: no cover - compiled
     """(converged, d, lam) of SaddleFactor.solve_nearby's refinement on the band factors, for the
     Jacobian (indptr, indices, data) in compressed columns."""

@@ -1,0 +1,304 @@
+"""asc's outer loop compiled: the augmented Lagrangian iterations with no Python between them.
+
+One call of ``outer_iterations`` runs solve_alm's outer iterations (alm module docstring: "Outer
+loop", "Converged", "Scale") from its current state until the solve ends or needs a branch that
+stays in Python: each inner solve (gauss_newton's compiled loop, called directly), the multiplier
+update lam <- lam + mu c and its least-squares alternative at a feasible p
+(linalg.normal's compiled semi-normal equations), the convergence test and its KKT confirmation
+(contract.optimality.nearby_band_kkt_distance, refining the last SQP step's band LU where its
+free set is the working set), the SQP step where the constraint stalls (a band LU, its
+second-order correction with the same factors; alm._sqp_step), the penalty's growth and the
+inner target's tightening. The Python loop in alm does the same in the same order, and the two
+give the same p bit for bit (the same kernels on the same inputs; tests/test_gauss_newton.py
+compares whole solves).
+
+Two branches hand the iteration back to solve_alm, which takes them in Python and calls again:
+Newton-SQP (the constraints' curvature comes from CasADi functions, not from compiled stencils;
+strands with a held tip) and the infeasibility test with its best effort (the least residual's
+QPs and the static sag's minimization, scipy). On the strands of a groom on a head neither
+happens: every iteration of their solves runs here (4 outer iterations and one SQP step each on
+``head_groom(200, 100)``).
+
+It applies where the inner loop is compiled (gauss_newton.available) and the saddle system is a
+band without a dense column (no strand multiplier: linalg.saddle.band_order).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from sagfree.contract.optimality import nearby_band_kkt_distance, scaled_projected_gradient_kernel
+from sagfree.formulation import at_rest
+from sagfree.formulation.problem import Problem
+from sagfree.linalg import lapack, timing
+from sagfree.linalg.band import dense_count
+from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
+from sagfree.linalg.normal import seminormal_kernel
+from sagfree.linalg.saddle import band_factors, band_order, no_band_factors, solve_band_factors
+
+from . import gauss_newton, mprgp
+from .gauss_newton import (CRAWL, INNER_STEPS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED, STALL, at_rest_residual,
+                           largest_magnitude)
+from .multipliers import SHIFT
+
+# why outer_iterations returned: converged (the distance in Stop.distance); an inner solve's limit or
+# failure (Stop.reason, Stop.qp_status); out of outer iterations; a branch for solve_alm to take
+CONVERGED, INNER_STOPPED, OUT_OF_OUTER, NEWTON, INFEASIBILITY = range(5)
+#: outer counters the loop advances, in the order of its array
+OUTER_COUNTED = ("outer", "sqp", "tightened")
+
+# solve_alm's constants, repeated here for the compiled loop (alm imports them from here)
+SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (alm._sqp_step)
+MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disagreeing
+NEWTON_NEAR = 1e-4  # |c|_inf at or below which a stalled constraint whose SQP step fails gets Newton-SQP
+NEWTON_ATTEMPTS = 3  # attempts per solve
+NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row at a feasible p
+NEAR = 1e-6  # contract.optimality.working_set's default: the free set of the SQP step and the KKT distance
+
+
+class Stop(NamedTuple):
+    """Where ``outer_iterations`` returned: the event, the loop's variables as solve_alm keeps them
+    (J a StrandJacobian; nearby the last SQP step's band factors, or None), and this iteration's
+    values a branch reads (violation, the KKT distance where measured, converged, stalls)."""
+    event: int
+    reason: int
+    qp_status: str
+    p: np.ndarray
+    c: np.ndarray
+    J: object
+    scale: np.ndarray
+    lam: np.ndarray
+    at_lower: np.ndarray
+    at_upper: np.ndarray
+    mu: float
+    omega: float
+    target: float
+    previous_violation: float
+    feasible_rounds: int
+    violation: float
+    distance: float
+    converged: bool
+    stalls: bool
+    nearby: tuple | None
+
+
+def available(problem: Problem) -> bool:
+    """True where ``outer_iterations`` can run on ``problem`` (module docstring)."""
+    if not gauss_newton.available(problem):
+        return False
+    structure = problem.at_rest_kernels[4]
+    indptr, indices, rows = structure[0], structure[1], problem.free_index.size
+    return (band_order(indptr, indices, rows) is not None
+            and int(np.diff(indptr).max(initial=0)) <= dense_count(rows))
+
+
+def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_upper, mu: float, omega: float,
+                     target: float, previous_violation: float, feasible_rounds: int, attempts: int, nearby,
+                     tol: float, kkt_tol: float, gradient_tol: float, max_outer: int, max_iterations: int,
+                     deadline: float, mu0: float, mu_growth: float, qp_rtol: float, preconditioner: str,
+                     counts: dict, history: list) -> Stop:
+    """Run solve_alm's outer iterations from its variables (module docstring) until an event;
+    counts and history are advanced as the Python loop advances them. deadline: the
+    time.perf_counter() value of max_seconds."""
+    forces_args, jacobian_args, free, row_scale, structure = problem.at_rest_kernels
+    lower, upper = problem.layout.lower, problem.layout.upper
+    position = band_order(structure[0], structure[1], free.size)
+    border = model.border
+    inner_counts = np.array([counts[name] for name in gauss_newton.COUNTED], dtype=np.int64)
+    outer_counts = np.array([counts[name] for name in OUTER_COUNTED], dtype=np.int64)
+    real = np.array([mu, omega, target, previous_violation, np.nan, np.nan])
+    integer = np.array([feasible_rounds, attempts, 0, 0, 0, 0, 0, 0], dtype=np.int64)
+    seconds = np.zeros(2)
+    steps = np.empty(max_iterations + 2 * max_outer + 2)  # one per Gauss-Newton step, at most one per SQP step
+    clock, clock_id = timing.CLOCK
+    event, p, c, f, values, scale, lam, nearby = _outer(
+        forces_args, jacobian_args, free, row_scale, structure, position, lapack.DGBTRF, lapack.DGBTRS, clock,
+        clock_id, model.w, model.p0, lower, upper, np.ascontiguousarray(p, dtype=float),
+        np.ascontiguousarray(c, dtype=float), J.csc()[2], np.ascontiguousarray(scale, dtype=float),
+        np.ascontiguousarray(lam, dtype=float), at_lower, at_upper, no_band_factors() if nearby is None else nearby,
+        float(tol), float(kkt_tol), float(gradient_tol), int(max_outer), int(max_iterations),
+        float(deadline - timing.clock_offset()), float(mu0), float(mu_growth), float(qp_rtol),
+        mprgp.PRECONDITIONERS[preconditioner], border, mprgp.ACTIVE_SET_STEPS if border == 0 else 0, mprgp.WALKING,
+        real, integer, inner_counts, outer_counts, seconds, steps)
+    timing.add(timing.MODEL, seconds[0])
+    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
+    for name, value in zip(gauss_newton.COUNTED, inner_counts.tolist()):
+        counts[name] = value
+    for name, value in zip(OUTER_COUNTED, outer_counts.tolist()):
+        counts[name] = value
+    feasible_rounds, _, converged, stalls, reason, qp_status, recorded, moved = integer.tolist()
+    history.extend(steps[:recorded].tolist())
+    if moved:
+        problem.remember_at_rest(p, f, values)
+        J = problem.strand_jacobian(p)
+    return Stop(event, reason, mprgp.STATUS[qp_status], p, c, J, scale, lam, at_lower, at_upper, *real[:4].tolist(),
+                feasible_rounds, float(real[4]), float(real[5]), bool(converged), bool(stalls),
+                nearby if nearby[0].size else None)
+
+
+@numba.njit(cache=True)
+def _outer(forces_args, jacobian_args, free, row_scale, structure, position, dgbtrf, dgbtrs, clock, clock_id, w, p0,
+           lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol, gradient_tol, max_outer,
+           max_iterations, deadline, mu0, mu_growth, qp_rtol, precond, border, active_set_steps, walking, real,
+           integer, counts, outer_counts, seconds, history):  # pragma: no cover - compiled
+    """The loop of ``outer_iterations`` (solve_alm's, line by line). real: [mu, omega, target,
+    previous violation, violation, distance] and integer: [feasible rounds, Newton attempts,
+    converged, stalls, inner reason, QP status, history entries, moved] are read and written in
+    place; counts in gauss_newton.COUNTED order, outer_counts in OUTER_COUNTED order, seconds
+    [model, linear algebra]. Returns (event, p, c, f(p) or empty if p did not move, dc/dp values,
+    scale, lam, nearby)."""
+    indptr, indices = structure[0], structure[1]
+    lam = lam.copy()  # updated in place below; the caller's stays as it was
+    mu, omega, target, previous_violation = real[0], real[1], real[2], real[3]
+    feasible_rounds, attempts = integer[0], integer[1]
+    buffer = np.zeros(2, dtype=np.int64)
+    steps = np.empty(INNER_STEPS + 1)
+    n, rows = p.size, c.size
+    f = np.empty(0)
+    recorded, moved_any, event = 0, False, OUT_OF_OUTER
+    violation, distance, converged, stalls = np.nan, np.nan, False, False
+    while outer_counts[0] < max_outer:
+        outer_counts[0] += 1
+        # ---- inner: Gauss-Newton on the augmented Lagrangian ----
+        steps_before = counts[0]
+        (reason, qp_status, optimality, stalled, moved, taken, p_inner, c_inner, f_inner, values_inner,
+         scale_inner) = gauss_newton.inner_loop(
+            forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, w, p0, lower, upper, p, c, values,
+            scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border, active_set_steps, walking,
+            at_lower, at_upper, counts, seconds, steps)
+        for k in range(taken):
+            history[recorded + k] = steps[k]
+        recorded += taken
+        if moved:
+            p, c, f, values, scale = p_inner, c_inner, f_inner, values_inner, scale_inner
+            moved_any = True
+            nearby = no_band_factors()
+        if reason == MAX_ITERATIONS or reason == MAX_SECONDS or reason == QP_FAILED:
+            integer[4], integer[5] = reason, qp_status
+            event = INNER_STOPPED
+            break
+        # ---- outer: multipliers, penalty, convergence ----
+        violation = largest_magnitude(c)
+        if counts[0] == steps_before and violation > tol and omega > target:
+            omega = max(target, 0.1 * omega)  # alm: a multiplier update here would not move p
+            while omega > target and optimality <= omega:
+                omega = max(target, 0.1 * omega)
+            continue
+        for r in range(rows):
+            lam[r] = lam[r] + mu * c[r]
+        regularizer_gradient = w * (p - p0)
+        optimality = _lagrangian_stationarity(p, regularizer_gradient, indptr, indices, values, lam, scale, lower,
+                                              upper)
+        if violation <= tol and optimality > gradient_tol:
+            estimate = _least_squares_multipliers(indptr, indices, values, rows, regularizer_gradient, scale, p,
+                                                  lower, upper)
+            kkt = _lagrangian_stationarity(p, regularizer_gradient, indptr, indices, values, estimate, scale, lower,
+                                           upper)
+            if kkt < optimality:
+                lam, optimality = estimate, kkt
+        converged = violation <= tol and (optimality <= gradient_tol or stalled >= STALL)
+        if converged:
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            distance = nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, values, position, w,
+                                                regularizer_gradient, c, p, lower, upper, NEAR, nearby)
+            seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - started
+            converged = distance <= kkt_tol
+            if not converged and (optimality <= target or stalled >= STALL):
+                outer_counts[2] += 1
+                target = max(1e-3 * target, MIN_TARGET)
+        crawled = violation <= tol and counts[0] > steps_before
+        feasible_rounds = feasible_rounds + 1 if crawled else 0
+        stalls = violation > tol and violation > 0.25 * previous_violation
+        if stalls:  # before growing mu, try the constrained step (SQP)
+            taken_step, p_sqp, c_sqp, f_sqp, lam_sqp, factors = _sqp_step(
+                forces_args, jacobian_args, free, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w,
+                p0, lower, upper, p, c, SQP_DECREASE * violation, tol, clock, clock_id, seconds)
+            if taken_step:
+                outer_counts[1] += 1
+                p, c, f, lam, nearby, moved_any = p_sqp, c_sqp, f_sqp, lam_sqp, factors, True
+                started = timing.clock_seconds(clock, clock_id, buffer)
+                values = at_rest.jacobian_values(p, *jacobian_args)
+                seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
+                scale = w + csc_column_norms(indptr, values) + 1e-300  # contract.optimality.gradient_scale
+                history[recorded] = largest_magnitude(c)
+                recorded += 1
+                previous_violation = violation
+                continue
+        if (not converged and attempts < NEWTON_ATTEMPTS
+                and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= NEWTON_NEAR))):
+            event = NEWTON  # solve_alm takes Newton-SQP, then the rest of this iteration
+            break
+        if converged:
+            event = CONVERGED
+            break
+        if stalls:
+            mu *= mu_growth
+            if mu >= 1e4 * mu0:
+                event = INFEASIBILITY  # solve_alm takes the infeasibility test, then the rest of this iteration
+                break
+        previous_violation = violation
+        omega = max(target, 0.1 * omega)
+    real[0], real[1], real[2], real[3], real[4], real[5] = mu, omega, target, previous_violation, violation, distance
+    integer[0], integer[2], integer[3], integer[6], integer[7] = feasible_rounds, converged, stalls, recorded, moved_any
+    return event, p, c, f, values, scale, lam, nearby
+
+
+@numba.njit(cache=True)
+def _lagrangian_stationarity(p, regularizer_gradient, indptr, indices, values, lam, scale, lower,
+                             upper):  # pragma: no cover - compiled
+    """scaled_projected_gradient(p, grad R + J^T lam, scale, lower, upper) (solve_alm's)."""
+    gradient = regularizer_gradient + csc_rmatvec(indptr, indices, values, lam)
+    return scaled_projected_gradient_kernel(p, gradient, scale, lower, upper)
+
+
+@numba.njit(cache=True)
+def _least_squares_multipliers(indptr, indices, values, rows, regularizer_gradient, scale, p, lower,
+                               upper):  # pragma: no cover - compiled
+    """solvers.multipliers.least_squares_multipliers on a Jacobian without a dense column
+    (``available`` checks that), its free set the variables strictly inside their box."""
+    free = np.empty(p.size, dtype=np.bool_)
+    for j in range(p.size):
+        free[j] = p[j] > lower[j] and p[j] < upper[j]
+    return seminormal_kernel(indptr, indices, values, rows, regularizer_gradient, scale, free, SHIFT)
+
+
+@numba.njit(cache=True)
+def _sqp_step(forces_args, jacobian_args, free_index, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w,
+              p0, lower, upper, p, c, bound, tol, clock, clock_id, seconds):  # pragma: no cover - compiled
+    """alm._sqp_step: (taken, p, c, f, lam, band factors at p for the KKT confirmation); not taken
+    where the saddle system is singular or the step leaves |c|_inf > bound."""
+    buffer = np.zeros(2, dtype=np.int64)
+    n, rows = p.size, c.size
+    free = np.empty(n, dtype=np.bool_)
+    for j in range(n):  # contract.optimality.working_set
+        slack = NEAR * (upper[j] - lower[j])
+        free[j] = (p[j] - lower[j] > slack) and (upper[j] - p[j] > slack)
+    empty = np.empty(0)
+    started = timing.clock_seconds(clock, clock_id, buffer)
+    factors = band_factors(dgbtrf, indptr, indices, values, w, free, position)
+    if factors[0].size == 0:
+        seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - started
+        return False, p, c, empty, empty, factors
+    step, lam = solve_band_factors(dgbtrs, factors, w * (p - p0), c)
+    now = timing.clock_seconds(clock, clock_id, buffer)
+    seconds[1] += now - started
+    trial = np.minimum(np.maximum(p + step, lower), upper)
+    c_trial, f_trial = at_rest_residual(trial, forces_args, free_index, row_scale)
+    seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - now
+    violation = largest_magnitude(c_trial)
+    if not violation <= tol:
+        # second-order correction: the least W-norm step back to c = 0 with the same J and factors
+        started = timing.clock_seconds(clock, clock_id, buffer)
+        correction, _ = solve_band_factors(dgbtrs, factors, np.zeros(n), c_trial)
+        now = timing.clock_seconds(clock, clock_id, buffer)
+        seconds[1] += now - started
+        corrected = np.minimum(np.maximum(trial + correction, lower), upper)
+        c_corrected, f_corrected = at_rest_residual(corrected, forces_args, free_index, row_scale)
+        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - now
+        if largest_magnitude(c_corrected) < violation or not violation <= bound:
+            trial, c_trial, f_trial = corrected, c_corrected, f_corrected
+    if not largest_magnitude(c_trial) <= bound:  # also rejects NaN
+        return False, p, c, empty, empty, factors
+    return True, trial, c_trial, f_trial, lam, factors
