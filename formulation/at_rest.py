@@ -310,3 +310,79 @@ def stiffening_gradient(v, p, vertex_slots, edge_q, edge_geometry, kinematics, v
     if strand_index.size:
         gradient[strand_index[0]] = pairwise_sum(forms[0]) + pairwise_sum(forms[1]) + pairwise_sum(stretch)
     return gradient
+
+
+@numba.njit(cache=True)
+def constraint_hessian_entries(p, lam, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, vertex_geometry,
+                               kinematics_jacobian, edge_dofs, vertex_dofs, free_index, row_scale, size, edge_hessian,
+                               vertex_hessian, edge_index, edge_coefficient, vertex_index,
+                               vertex_coefficient):  # pragma: no cover - compiled
+    """Problem.constraint_hessian_entries in one compiled call (Problem.curvature_kernels gives the
+    arguments after p and lam): mu = lam / D on the free DOFs (``size`` of them in all), per
+    stencil the Hessian of u . dE/dk in the physical parameters (edge_hessian / vertex_hessian: the
+    addresses of stencils.parameter_hessians' drivers) with u = mu on an edge's DOFs and
+    u = (dk/dy) mu_y on a vertex's, then ``slot_pair_entries``."""
+    mu = np.zeros(size)
+    for r in range(free_index.size):
+        mu[free_index[r]] = lam[r] / row_scale[r]
+    edge_physical, vertex_physical = _physical(p, edge_slots, vertex_slots)
+    edges, edge_width = edge_dofs.shape
+    vertices, kinematics_size, vertex_width = kinematics_jacobian.shape
+    edge_u = np.empty((edges, edge_width))
+    for s in range(edges):
+        for i in range(edge_width):
+            edge_u[s, i] = mu[edge_dofs[s, i]]
+    vertex_u = np.zeros((vertices, kinematics_size))
+    for s in range(vertices):
+        for j in range(kinematics_size):
+            for i in range(vertex_width):
+                vertex_u[s, j] += kinematics_jacobian[s, j, i] * mu[vertex_dofs[s, i]]
+    edge_size, vertex_size = edge_physical.shape[1], vertex_physical.shape[1]
+    edge_blocks = np.empty((edges, edge_size * edge_size))
+    _call(edge_hessian, edges, (edge_q, edge_geometry, edge_physical, edge_u), edge_blocks)
+    vertex_blocks = np.empty((vertices, vertex_size * vertex_size))
+    _call(vertex_hessian, vertices, (kinematics, vertex_geometry, vertex_physical, vertex_u), vertex_blocks)
+    # the drivers write each block column by column (compiled._shaped)
+    return slot_pair_entries(
+        edge_index, edge_coefficient,
+        np.ascontiguousarray(edge_blocks.reshape(edges, edge_size, edge_size).transpose((0, 2, 1))),
+        vertex_index, vertex_coefficient,
+        np.ascontiguousarray(vertex_blocks.reshape(vertices, vertex_size, vertex_size).transpose((0, 2, 1))))
+
+
+@numba.njit(cache=True)
+def slot_pair_entries(edge_index, edge_coefficient, edge_blocks, vertex_index, vertex_coefficient,
+                      vertex_blocks):  # pragma: no cover - compiled
+    """(rows, columns, values) of -c_a c_b B[s, a, b] for every stencil s and pair of linked slots
+    (a, b) (index >= 0), the edge stencils' then the vertex stencils' (Problem.constraint_hessian_entries)."""
+    count = _linked_pairs(edge_index) + _linked_pairs(vertex_index)
+    rows, cols, values = np.empty(count, np.int64), np.empty(count, np.int64), np.empty(count)
+    k = _fill_pairs(edge_index, edge_coefficient, edge_blocks, rows, cols, values, 0)
+    _fill_pairs(vertex_index, vertex_coefficient, vertex_blocks, rows, cols, values, k)
+    return rows, cols, values
+
+
+@numba.njit(cache=True)
+def _linked_pairs(index):  # pragma: no cover - compiled
+    count = 0
+    for s in range(index.shape[0]):
+        linked = 0
+        for a in range(index.shape[1]):
+            linked += index[s, a] >= 0
+        count += linked * linked
+    return count
+
+
+@numba.njit(cache=True)
+def _fill_pairs(index, coefficient, blocks, rows, cols, values, k):  # pragma: no cover - compiled
+    for s in range(index.shape[0]):
+        for a in range(index.shape[1]):
+            if index[s, a] < 0:
+                continue
+            for b in range(index.shape[1]):
+                if index[s, b] < 0:
+                    continue
+                rows[k], cols[k] = index[s, a], index[s, b]
+                values[k] = -(coefficient[s, a] * coefficient[s, b] * blocks[s, a, b])
+                k += 1
+    return k

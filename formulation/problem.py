@@ -524,6 +524,8 @@ class Problem:
         lam = np.asarray(lam, dtype=float).reshape(-1)
         if lam.shape != (self.free_index.size,):
             raise ValueError(f"lam must have one entry per free DOF ({self.free_index.size}), got {lam.size}")
+        if self.curvature_kernels is not None:  # one compiled call (what asc's compiled outer loop calls)
+            return at_rest.constraint_hessian_entries(p, lam, *self.curvature_kernels)
         mu = np.zeros(self.q_star.size)
         mu[self.free_index] = lam / self._free_row_scale
         functions = parameter_hessians(self.curvature, self.energies)
@@ -533,8 +535,25 @@ class Problem:
         (vertex_blocks,) = functions.vertex(kinematics, *vertex[2:],
                                             np.einsum("sij,si->sj", transposed, mu[self.vertex_dofs]))
         edge_map, vertex_map = self.layout.edge_map, self.layout.vertex_map
-        return _slot_pair_entries(edge_map.index, edge_map.coefficient, np.ascontiguousarray(edge_blocks),
-                                  vertex_map.index, vertex_map.coefficient, np.ascontiguousarray(vertex_blocks))
+        return at_rest.slot_pair_entries(edge_map.index, edge_map.coefficient, np.ascontiguousarray(edge_blocks),
+                                         vertex_map.index, vertex_map.coefficient,
+                                         np.ascontiguousarray(vertex_blocks))
+
+    @functools.cached_property
+    def curvature_kernels(self):
+        """The arguments after (p, lam) of at_rest.constraint_hessian_entries, which evaluates
+        ``constraint_hessian_entries`` in one compiled call, or None where its stencils or the
+        at_rest kernels are not compiled. Built on first use: only Newton-SQP needs the
+        constraints' curvature (the warm-up loads its library in every process that solves)."""
+        compiled = self._compiled_at_rest
+        functions = parameter_hessians(self.curvature, self.energies)
+        if compiled is None or not (functions.edge.compiled and functions.vertex.compiled):
+            return None
+        edge_map, vertex_map = self.layout.edge_map, self.layout.vertex_map
+        return (*compiled[0], self.edge_dofs, self.vertex_dofs, self.free_index, self._free_row_scale,
+                self.q_star.size, functions.edge.address, functions.vertex.address,
+                *(np.ascontiguousarray(a) for a in (edge_map.index, edge_map.coefficient, vertex_map.index,
+                                                    vertex_map.coefficient)))
 
     def _hessian_blocks(self, p, q, frames):
         """[(stencil DOF indices, stencil Hessians d2E/dy2)] of the edge and vertex stencils. At q* and
@@ -830,44 +849,6 @@ def _mass_scaling(masses, free_index, diagonals):  # pragma: no cover - compiled
         for j in range(size - k):
             row_scale[k, j], column_scale[k, j] = scale[j + k], scale[j]
     return scale, row_scale, column_scale
-
-
-@numba.njit(cache=True)
-def _slot_pair_entries(edge_index, edge_coefficient, edge_blocks, vertex_index, vertex_coefficient,
-                       vertex_blocks):  # pragma: no cover - compiled
-    """(rows, columns, values) of -c_a c_b B[s, a, b] for every stencil s and pair of linked slots
-    (a, b) (index >= 0), the edge stencils' then the vertex stencils' (Problem.constraint_hessian_entries)."""
-    count = _linked_pairs(edge_index) + _linked_pairs(vertex_index)
-    rows, cols, values = np.empty(count, np.int64), np.empty(count, np.int64), np.empty(count)
-    k = _fill_pairs(edge_index, edge_coefficient, edge_blocks, rows, cols, values, 0)
-    _fill_pairs(vertex_index, vertex_coefficient, vertex_blocks, rows, cols, values, k)
-    return rows, cols, values
-
-
-@numba.njit(cache=True)
-def _linked_pairs(index):  # pragma: no cover - compiled
-    count = 0
-    for s in range(index.shape[0]):
-        linked = 0
-        for a in range(index.shape[1]):
-            linked += index[s, a] >= 0
-        count += linked * linked
-    return count
-
-
-@numba.njit(cache=True)
-def _fill_pairs(index, coefficient, blocks, rows, cols, values, k):  # pragma: no cover - compiled
-    for s in range(index.shape[0]):
-        for a in range(index.shape[1]):
-            if index[s, a] < 0:
-                continue
-            for b in range(index.shape[1]):
-                if index[s, b] < 0:
-                    continue
-                rows[k], cols[k] = index[s, a], index[s, b]
-                values[k] = -(coefficient[s, a] * coefficient[s, b] * blocks[s, a, b])
-                k += 1
-    return k
 
 
 def _vertex_sums(edge_lengths: np.ndarray) -> np.ndarray:

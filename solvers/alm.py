@@ -11,9 +11,9 @@ Outer loop (augmented Lagrangian, PERMON SMALXE-style accounting):
     (_initial_penalty). Gauss-Newton omits lam^T c'', so the usable range of mu narrows as the
     bending modes soften with n: mu0 = 100 is the floor that works from 25 to 800 vertices.
     Where the saddle system is a band (every problem without a strand multiplier), the outer
-    iterations run as compiled calls (solvers.outer_loop) that hand back to this loop only for
-    Newton-SQP and the infeasibility test (below); the loop here is the same arithmetic, for the
-    rest.
+    iterations, Newton-SQP included, run as one compiled call (solvers.outer_loop) that hands back
+    to this loop only for the infeasibility test (below); the loop here is the same arithmetic,
+    for the rest.
 Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu J^T J (damped,
     _Model.hessian); each step solves the box QP
     min g^T d + 1/2 d^T H d,  lower - p <= d <= upper - p  by MPRGP, preconditioned by the active-set
@@ -139,14 +139,12 @@ from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, 
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from . import outer_loop
 from .multipliers import least_squares_multipliers
-from .outer_loop import MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_NEAR, SQP_DECREASE
+from .outer_loop import (MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS, NEWTON_NEAR,
+                         NEWTON_STEPS, SQP_DECREASE)
 from .confirmed_start import confirmed_start
 from .statics_start import square_rest_system, statics_start, unbalanceable
 
 STALLED_VIOLATION = 1e-3  # |c|_inf above which a penalty of 1e4 mu0 hands over to least_residual
-NEWTON_STEPS = 12  # exact-Hessian SQP steps per attempt (module docstring, Newton-SQP)
-NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
-NEWTON_HALVINGS = 8  # ... at most this many times (_newton_trial)
 #: how an infeasibility message tells the user to relax the bounds (API and command line)
 RELAX = ("Relax those bounds (bounds={block: (lower, upper)}, or curvature_budget / twist_budget for the "
          "rest-shape boxes; command line: --bound BLOCK=LO,HI or --bound curvature_budget=VALUE)")
@@ -277,15 +275,16 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                 feasible_rounds, attempts, nearby, tol, kkt_tol, gradient_tol, max_outer, max_iterations,
                 clock + max_seconds, mu0, mu_growth, qp_rtol, preconditioner, counts, history)
             (p, c, J, scale, lam, at_lower, at_upper, mu, omega, target, previous_violation, feasible_rounds,
-             nearby) = (stop.p, stop.c, stop.J, stop.scale, stop.lam, stop.at_lower, stop.at_upper, stop.mu,
-                        stop.omega, stop.target, stop.previous_violation, stop.feasible_rounds, stop.nearby)
+             attempts, nearby) = (stop.p, stop.c, stop.J, stop.scale, stop.lam, stop.at_lower, stop.at_upper, stop.mu,
+                                  stop.omega, stop.target, stop.previous_violation, stop.feasible_rounds,
+                                  stop.attempts, stop.nearby)
             violation, distance, converged, stalls = stop.violation, stop.distance, stop.converged, stop.stalls
             event = stop.event
             if event == outer_loop.OUT_OF_OUTER:
                 break
             if event == outer_loop.INNER_STOPPED:
                 return finish(*_inner_stop(stop.reason, stop.qp_status, max_iterations, clock, counts, history))
-            # the rest of this iteration (convergence, Newton-SQP, the infeasibility test) is below
+            # the rest of this iteration (convergence, the infeasibility test) is below
         else:
             counts["outer"] += 1
             # ---- inner: Gauss-Newton on the augmented Lagrangian (compiled where it can be) ----
@@ -345,8 +344,8 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                     previous_violation = violation
                     continue
         # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it (module
-        # docstring); where the compiled loop stopped for it, this test holds again (the same values)
-        if (not converged and attempts < NEWTON_ATTEMPTS
+        # docstring; the compiled loop took it already)
+        if (event is None and not converged and attempts < NEWTON_ATTEMPTS
                 and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= NEWTON_NEAR))):
             attempts, feasible_rounds = attempts + 1, 0
             newton = (_newton_sqp(problem, model, p, counts, tol, kkt_tol)
@@ -359,7 +358,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         if converged:
             return converged_at(violation, distance)
         if stalls:
-            if event != outer_loop.INFEASIBILITY:  # where it is, the compiled loop grew mu already
+            if event is None:  # the compiled loop grew it already
                 mu *= mu_growth
             if mu >= 1e4 * mu0:
                 verdict = _infeasibility(problem, p, c, J, lower, upper)

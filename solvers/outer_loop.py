@@ -1,26 +1,28 @@
 """asc's outer loop compiled: the augmented Lagrangian iterations with no Python between them.
 
 One call of ``outer_iterations`` runs solve_alm's outer iterations (alm module docstring: "Outer
-loop", "Converged", "Scale") from its current state until the solve ends or needs a branch that
-stays in Python: each inner solve (gauss_newton's compiled loop, called directly), the multiplier
-update lam <- lam + mu c and its least-squares alternative at a feasible p
+loop", "Converged", "Scale", "Newton-SQP") from its current state until the solve ends or needs the
+infeasibility test: each inner solve (gauss_newton's compiled loop, called directly), the
+multiplier update lam <- lam + mu c and its least-squares alternative at a feasible p
 (linalg.normal's compiled semi-normal equations), the convergence test and its KKT confirmation
 (contract.optimality.nearby_band_kkt_distance, refining the last SQP step's band LU where its
 free set is the working set), the SQP step where the constraint stalls (a band LU, its
-second-order correction with the same factors; alm._sqp_step), the penalty's growth and the
-inner target's tightening. The Python loop in alm does the same in the same order, and the two
-give the same p bit for bit (the same kernels on the same inputs; tests/test_gauss_newton.py
-compares whole solves).
+second-order correction with the same factors; alm._sqp_step), Newton-SQP with the constraints'
+curvature (formulation.at_rest.constraint_hessian_entries; alm._newton_sqp and _newton_trial),
+the penalty's growth and the inner target's tightening. The Python loop in alm does the same in
+the same order, and the two give the same p bit for bit (the same kernels on the same inputs;
+tests/test_gauss_newton.py compares whole solves).
 
-Two branches hand the iteration back to solve_alm, which takes them in Python and calls again:
-Newton-SQP (the constraints' curvature comes from CasADi functions, not from compiled stencils;
-strands with a held tip) and the infeasibility test with its best effort (the least residual's
-QPs and the static sag's minimization, scipy). On the strands of a groom on a head neither
-happens: every iteration of their solves runs here (4 outer iterations and one SQP step each on
+The infeasibility test and its best effort (the least residual's QPs, the static sag's
+minimization through scipy) hand the iteration back to solve_alm, which takes them in Python
+and calls again if the solve goes on: a strand that reaches them is one the boxes cannot balance,
+whose best effort costs far more than the iterations. The strands of a groom on a head never
+do: every iteration of their solves runs here (4 outer iterations and one SQP step each on
 ``head_groom(200, 100)``).
 
-It applies where the inner loop is compiled (gauss_newton.available) and the saddle system is a
-band without a dense column (no strand multiplier: linalg.saddle.band_order).
+It applies where the inner loop and the constraints' curvature are compiled (gauss_newton.available,
+Problem.curvature_kernels) and the saddle system is a band without a dense column (no strand
+multiplier: linalg.saddle.band_order).
 """
 from __future__ import annotations
 
@@ -29,25 +31,28 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from sagfree.contract.optimality import nearby_band_kkt_distance, scaled_projected_gradient_kernel
+from sagfree.contract.optimality import (band_kkt_distance, nearby_band_kkt_distance,
+                                         scaled_projected_gradient_kernel)
 from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.band import dense_count
 from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
 from sagfree.linalg.normal import seminormal_kernel
-from sagfree.linalg.saddle import band_factors, band_order, no_band_factors, solve_band_factors
+from sagfree.linalg.pairwise import pairwise_sum
+from sagfree.linalg.saddle import (band_factors, band_order, no_band_factors, plain_band_factors,
+                                   solve_band_factors)
 
 from . import gauss_newton, mprgp
-from .gauss_newton import (CRAWL, INNER_STEPS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED, STALL, at_rest_residual,
+from .gauss_newton import (INNER_STEPS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED, STALL, at_rest_residual,
                            largest_magnitude)
 from .multipliers import SHIFT
 
 # why outer_iterations returned: converged (the distance in Stop.distance); an inner solve's limit or
-# failure (Stop.reason, Stop.qp_status); out of outer iterations; a branch for solve_alm to take
-CONVERGED, INNER_STOPPED, OUT_OF_OUTER, NEWTON, INFEASIBILITY = range(5)
+# failure (Stop.reason, Stop.qp_status); out of outer iterations; the infeasibility test for solve_alm
+CONVERGED, INNER_STOPPED, OUT_OF_OUTER, INFEASIBILITY = range(4)
 #: outer counters the loop advances, in the order of its array
-OUTER_COUNTED = ("outer", "sqp", "tightened")
+OUTER_COUNTED = ("outer", "sqp", "tightened", "newton_sqp")
 
 # solve_alm's constants, repeated here for the compiled loop (alm imports them from here)
 SQP_DECREASE = 0.5  # the SQP step is taken if it reduces |c|_inf at least by this factor (alm._sqp_step)
@@ -55,6 +60,9 @@ MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disa
 NEWTON_NEAR = 1e-4  # |c|_inf at or below which a stalled constraint whose SQP step fails gets Newton-SQP
 NEWTON_ATTEMPTS = 3  # attempts per solve
 NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row at a feasible p
+NEWTON_STEPS = 12  # exact-Hessian SQP steps per attempt (alm module docstring, Newton-SQP)
+NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
+NEWTON_HALVINGS = 8  # ... at most this many times (alm._newton_trial)
 NEAR = 1e-6  # contract.optimality.working_set's default: the free set of the SQP step and the KKT distance
 
 
@@ -77,6 +85,7 @@ class Stop(NamedTuple):
     target: float
     previous_violation: float
     feasible_rounds: int
+    attempts: int
     violation: float
     distance: float
     converged: bool
@@ -86,7 +95,7 @@ class Stop(NamedTuple):
 
 def available(problem: Problem) -> bool:
     """True where ``outer_iterations`` can run on ``problem`` (module docstring)."""
-    if not gauss_newton.available(problem):
+    if not gauss_newton.available(problem) or problem.curvature_kernels is None:
         return False
     structure = problem.at_rest_kernels[4]
     indptr, indices, rows = structure[0], structure[1], problem.free_index.size
@@ -111,11 +120,12 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
     real = np.array([mu, omega, target, previous_violation, np.nan, np.nan])
     integer = np.array([feasible_rounds, attempts, 0, 0, 0, 0, 0, 0], dtype=np.int64)
     seconds = np.zeros(2)
-    steps = np.empty(max_iterations + 2 * max_outer + 2)  # one per Gauss-Newton step, at most one per SQP step
+    # one per Gauss-Newton step, at most one per SQP step or Newton-SQP attempt
+    steps = np.empty(max_iterations + 2 * max_outer + 2)
     clock, clock_id = timing.CLOCK
     event, p, c, f, values, scale, lam, nearby = _outer(
-        forces_args, jacobian_args, free, row_scale, structure, position, lapack.DGBTRF, lapack.DGBTRS, clock,
-        clock_id, model.w, model.p0, lower, upper, np.ascontiguousarray(p, dtype=float),
+        forces_args, jacobian_args, problem.curvature_kernels, free, row_scale, structure, position, lapack.DGBTRF,
+        lapack.DGBTRS, clock, clock_id, model.w, model.p0, lower, upper, np.ascontiguousarray(p, dtype=float),
         np.ascontiguousarray(c, dtype=float), J.csc()[2], np.ascontiguousarray(scale, dtype=float),
         np.ascontiguousarray(lam, dtype=float), at_lower, at_upper, no_band_factors() if nearby is None else nearby,
         float(tol), float(kkt_tol), float(gradient_tol), int(max_outer), int(max_iterations),
@@ -128,25 +138,26 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
         counts[name] = value
     for name, value in zip(OUTER_COUNTED, outer_counts.tolist()):
         counts[name] = value
-    feasible_rounds, _, converged, stalls, reason, qp_status, recorded, moved = integer.tolist()
+    feasible_rounds, attempts, converged, stalls, reason, qp_status, recorded, moved = integer.tolist()
     history.extend(steps[:recorded].tolist())
     if moved:
         problem.remember_at_rest(p, f, values)
         J = problem.strand_jacobian(p)
     return Stop(event, reason, mprgp.STATUS[qp_status], p, c, J, scale, lam, at_lower, at_upper, *real[:4].tolist(),
-                feasible_rounds, float(real[4]), float(real[5]), bool(converged), bool(stalls),
+                feasible_rounds, attempts, float(real[4]), float(real[5]), bool(converged), bool(stalls),
                 nearby if nearby[0].size else None)
 
 
 @numba.njit(cache=True)
-def _outer(forces_args, jacobian_args, free, row_scale, structure, position, dgbtrf, dgbtrs, clock, clock_id, w, p0,
-           lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol, gradient_tol, max_outer,
+def _outer(forces_args, jacobian_args, curvature_args, free, row_scale, structure, position, dgbtrf, dgbtrs, clock,
+           clock_id, w, p0, lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol, gradient_tol, max_outer,
            max_iterations, deadline, mu0, mu_growth, qp_rtol, precond, border, active_set_steps, walking, real,
            integer, counts, outer_counts, seconds, history):  # pragma: no cover - compiled
     """The loop of ``outer_iterations`` (solve_alm's, line by line). real: [mu, omega, target,
     previous violation, violation, distance] and integer: [feasible rounds, Newton attempts,
     converged, stalls, inner reason, QP status, history entries, moved] are read and written in
-    place; counts in gauss_newton.COUNTED order, outer_counts in OUTER_COUNTED order, seconds
+    place; counts in gauss_newton.COUNTED order, outer_counts in OUTER_COUNTED order; curvature_args:
+    Problem.curvature_kernels (Newton-SQP's constraint curvature); seconds
     [model, linear algebra]. Returns (event, p, c, f(p) or empty if p did not move, dc/dp values,
     scale, lam, nearby)."""
     indptr, indices = structure[0], structure[1]
@@ -155,7 +166,7 @@ def _outer(forces_args, jacobian_args, free, row_scale, structure, position, dgb
     feasible_rounds, attempts = integer[0], integer[1]
     buffer = np.zeros(2, dtype=np.int64)
     steps = np.empty(INNER_STEPS + 1)
-    n, rows = p.size, c.size
+    rows = c.size
     f = np.empty(0)
     recorded, moved_any, event = 0, False, OUT_OF_OUTER
     violation, distance, converged, stalls = np.nan, np.nan, False, False
@@ -226,10 +237,22 @@ def _outer(forces_args, jacobian_args, free, row_scale, structure, position, dgb
                 recorded += 1
                 previous_violation = violation
                 continue
+        # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it
         if (not converged and attempts < NEWTON_ATTEMPTS
                 and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= NEWTON_NEAR))):
-            event = NEWTON  # solve_alm takes Newton-SQP, then the rest of this iteration
-            break
+            attempts, feasible_rounds = attempts + 1, 0
+            newton = (forces_args, jacobian_args, curvature_args, free, row_scale, indptr, indices, position, dgbtrf,
+                      dgbtrs, w, p0, lower, upper, p, c, values, tol, kkt_tol, clock, clock_id, outer_counts, seconds)
+            # np.int64: literal ints would compile _newton_sqp once for each
+            found, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(0))
+            if not found:  # again, each step halved while it leaves |c|_inf far above its start
+                found, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(NEWTON_HALVINGS))
+            if found:
+                p, c, f, values, distance, moved_any = x, c_x, f_x, values_x, distance_x, True
+                violation = largest_magnitude(c)
+                history[recorded] = violation
+                recorded += 1
+                converged = True
         if converged:
             event = CONVERGED
             break
@@ -241,7 +264,8 @@ def _outer(forces_args, jacobian_args, free, row_scale, structure, position, dgb
         previous_violation = violation
         omega = max(target, 0.1 * omega)
     real[0], real[1], real[2], real[3], real[4], real[5] = mu, omega, target, previous_violation, violation, distance
-    integer[0], integer[2], integer[3], integer[6], integer[7] = feasible_rounds, converged, stalls, recorded, moved_any
+    integer[0], integer[1], integer[2], integer[3], integer[6], integer[7] = (feasible_rounds, attempts, converged, stalls,
+                                                                              recorded, moved_any)
     return event, p, c, f, values, scale, lam, nearby
 
 
@@ -270,14 +294,14 @@ def _sqp_step(forces_args, jacobian_args, free_index, row_scale, indptr, indices
     """alm._sqp_step: (taken, p, c, f, lam, band factors at p for the KKT confirmation); not taken
     where the saddle system is singular or the step leaves |c|_inf > bound."""
     buffer = np.zeros(2, dtype=np.int64)
-    n, rows = p.size, c.size
+    n = p.size
     free = np.empty(n, dtype=np.bool_)
     for j in range(n):  # contract.optimality.working_set
         slack = NEAR * (upper[j] - lower[j])
         free[j] = (p[j] - lower[j] > slack) and (upper[j] - p[j] > slack)
     empty = np.empty(0)
     started = timing.clock_seconds(clock, clock_id, buffer)
-    factors = band_factors(dgbtrf, indptr, indices, values, w, free, position)
+    factors = plain_band_factors(dgbtrf, indptr, indices, values, w, free, position)
     if factors[0].size == 0:
         seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - started
         return False, p, c, empty, empty, factors
@@ -302,3 +326,125 @@ def _sqp_step(forces_args, jacobian_args, free_index, row_scale, indptr, indices
     if not largest_magnitude(c_trial) <= bound:  # also rejects NaN
         return False, p, c, empty, empty, factors
     return True, trial, c_trial, f_trial, lam, factors
+
+
+@numba.njit(cache=True)
+def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scale, indptr, indices, position, dgbtrf,
+                dgbtrs, w, p0, lower, upper, p, c, values, tol, kkt_tol, clock, clock_id, outer_counts, seconds,
+                halvings):  # pragma: no cover - compiled
+    """alm._newton_sqp: (found, p, c, f, dc/dp values, KKT distance) after at most NEWTON_STEPS
+    exact-Hessian SQP steps from p (c and dc/dp ``values`` there); found only where they end at |c|_inf <= tol, a KKT distance
+    <= kkt_tol and R no larger than at p (plus rounding). Counts its steps in outer_counts[3]."""
+    buffer = np.zeros(2, dtype=np.int64)
+    n = p.size
+    work = np.empty(n)
+    empty = np.empty(0)
+    start_objective = _regularizer(w, p, p0, work)
+    x, current = p.copy(), True  # values: dc/dp at x while current
+    lam = np.empty(0)
+    for _ in range(NEWTON_STEPS):
+        if not current:
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            values = at_rest.jacobian_values(x, *jacobian_args)
+            seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
+        gradient = w * (x - p0)
+        free = np.empty(n, dtype=np.bool_)
+        for j in range(n):  # contract.optimality.working_set
+            slack = NEAR * (upper[j] - lower[j])
+            free[j] = (x[j] - lower[j] > slack) and (upper[j] - x[j] > slack)
+        if lam.size == 0:  # the first step's; each later one takes the previous step's
+            scale = w + csc_column_norms(indptr, values) + 1e-300
+            lam = _least_squares_multipliers(indptr, indices, values, c.size, gradient, scale, x, lower, upper)
+            if not np.all(np.isfinite(lam)):
+                return False, p, empty, empty, empty, np.inf
+        started = timing.clock_seconds(clock, clock_id, buffer)
+        rows, columns, entries = at_rest.constraint_hessian_entries(x, lam, *curvature_args)
+        now = timing.clock_seconds(clock, clock_id, buffer)
+        seconds[0] += now - started
+        factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
+        if factors[0].size == 0:  # too few free directions (as in kkt_optimality): free those near a bound
+            for j in range(n):
+                free[j] = x[j] > lower[j] and x[j] < upper[j]
+            factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
+        if factors[0].size == 0:
+            seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+            return False, p, empty, empty, empty, np.inf
+        step, lam = solve_band_factors(dgbtrs, factors, gradient, c)
+        seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+        if not np.all(np.isfinite(step)):
+            return False, p, empty, empty, empty, np.inf
+        outer_counts[3] += 1
+        usable, trial, c_trial, f_trial = _newton_trial(forces_args, free_index, row_scale, indptr, indices, values,
+                                                        position, dgbtrf, dgbtrs, w, lower, upper, x, step, c, free,
+                                                        tol, halvings, clock, clock_id, seconds)
+        if not usable or not np.all(np.isfinite(c_trial)):
+            return False, p, empty, empty, empty, np.inf
+        x, c, current = trial, c_trial, False
+        if largest_magnitude(c_trial) <= tol:
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            values, current = at_rest.jacobian_values(x, *jacobian_args), True
+            now = timing.clock_seconds(clock, clock_id, buffer)
+            seconds[0] += now - started
+            distance = band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, values, position, w, w * (x - p0), c_trial,
+                                         x, lower, upper, NEAR)
+            seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+            if distance <= kkt_tol:
+                if _regularizer(w, x, p0, work) <= start_objective * (1.0 + 1e-9) + 1e-15:
+                    return True, x, c_trial, f_trial, values, distance
+                return False, p, empty, empty, empty, np.inf
+    return False, p, empty, empty, empty, np.inf
+
+
+@numba.njit(cache=True)
+def _newton_trial(forces_args, free_index, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w, lower,
+                  upper, x, step, c, free, tol, halvings, clock, clock_id, seconds):  # pragma: no cover - compiled
+    """alm._newton_trial: (usable, trial point, its c, its f); not usable where the correction's
+    saddle system is singular."""
+    buffer = np.zeros(2, dtype=np.int64)
+    bound = NEWTON_GROWTH * max(tol, largest_magnitude(c))
+    factors = no_band_factors()
+    factored = False
+    fraction = 1.0
+    trial, c_trial, f_trial = x, c, np.empty(0)
+    for _ in range(halvings + 1):
+        trial = np.minimum(np.maximum(x + fraction * step, lower), upper)
+        started = timing.clock_seconds(clock, clock_id, buffer)
+        c_trial, f_trial = at_rest_residual(trial, forces_args, free_index, row_scale)
+        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
+        if not largest_magnitude(c_trial) <= tol:
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            if not factored:
+                factors, factored = plain_band_factors(dgbtrf, indptr, indices, values, w, free, position), True
+            if factors[0].size == 0:
+                seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - started
+                return False, trial, c_trial, f_trial
+            correction, _ = solve_band_factors(dgbtrs, factors, np.zeros(x.size), c_trial)
+            now = timing.clock_seconds(clock, clock_id, buffer)
+            seconds[1] += now - started
+            trial = np.minimum(np.maximum(trial + correction, lower), upper)
+            c_trial, f_trial = at_rest_residual(trial, forces_args, free_index, row_scale)
+            seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - now
+        if largest_magnitude(c_trial) <= bound:
+            break
+        fraction *= 0.5
+    return True, trial, c_trial, f_trial
+
+
+@numba.njit(cache=True)
+def _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns,
+                    entries):  # pragma: no cover - compiled
+    """``band_factors`` of the saddle system with W = diag(w) + the curvature triplets (rows,
+    columns, entries) between free variables (SaddleFactor(J, w, free, curvature))."""
+    keep = np.empty(rows.size, dtype=np.bool_)
+    for k in range(rows.size):
+        keep[k] = free[rows[k]] and free[columns[k]]
+    return band_factors(dgbtrf, indptr, indices, values, w, free, position, rows[keep], columns[keep], entries[keep])
+
+
+@numba.njit(cache=True)
+def _regularizer(w, p, p0, work):  # pragma: no cover - compiled
+    """R(p) = 1/2 sum w (p - p0)^2 as Problem.objective sums it (numpy's pairwise sum)."""
+    for j in range(p.size):
+        d = p[j] - p0[j]
+        work[j] = w[j] * d * d
+    return 0.5 * pairwise_sum(work)

@@ -7,6 +7,7 @@ import scipy.linalg
 import sagfree
 from sagfree.formulation import dofs
 from sagfree.formulation.simulation import equilibrium, push_check, simulate
+from sagfree.scenes.head import HEAD, head_groom
 from sagfree.scenes.npz import load_strands, save_strands
 
 
@@ -142,6 +143,25 @@ def test_constraint_hessian_matches_finite_differences(options):
     direction = rng.standard_normal(p.size) * 1e-6
     difference = 0.5 * (problem.jacobian(p + direction).T @ lam - problem.jacobian(p - direction).T @ lam)
     assert np.linalg.norm(hessian @ direction - difference) <= 1e-7 * np.linalg.norm(difference)
+
+
+@pytest.mark.parametrize("options", [{}, {"curvature": "2d-average"}])
+def test_the_compiled_constraint_curvature_is_the_stencil_functions_bit_for_bit(options, monkeypatch):
+    """at_rest.constraint_hessian_entries (Newton-SQP's curvature, one compiled call) against the
+    stencil functions called from Python, on a strand with a pinned vertex and one on a head."""
+    for problem in (sagfree.Problem(sagfree.Strand(sagfree.scenes.curly(n=20).points, pins=[7]), **options),
+                    sagfree.Problem(head_groom(1, 30, seed=2)[0], bodies=[HEAD], **options)):
+        rng = np.random.default_rng(3)
+        p = np.clip(problem.p0 + 0.03 * rng.uniform(size=problem.n_parameters) * (problem.upper - problem.lower),
+                    problem.lower, problem.upper)
+        lam = rng.standard_normal(problem.free_index.size)
+        assert problem.curvature_kernels is not None
+        compiled = problem.constraint_hessian_entries(p, lam)
+        monkeypatch.setitem(problem.__dict__, "curvature_kernels", None)  # the cached property's value
+        python = problem.constraint_hessian_entries(p, lam)
+        for a, b in zip(compiled, python):
+            assert np.array_equal(a, b)
+        assert np.abs(compiled[2]).max() > 0
 
 
 def test_attachments_and_loads_travel_in_npz(tmp_path):

@@ -145,22 +145,30 @@ def plain_band_step(dgbtrf, dgbtrs, indptr, indices, data, w, free, position, gr
 
 
 @numba.njit(cache=True)
-def band_factors(dgbtrf, indptr, indices, data, w, free, position):  # pragma: no cover - compiled
+def band_factors(dgbtrf, indptr, indices, data, w, free, position, curvature_rows, curvature_columns,
+                 curvature_values):  # pragma: no cover - compiled
     """(factors, half-bandwidth, pivots, kept, reduced positions, free) of ``SaddleFactor(J, w,
-    free)`` without curvature, as it holds them, for compiled code (J in compressed columns,
-    ``position`` from ``band_order``); no_band_factors() where the system is singular."""
+    free, curvature)`` as it holds them, for compiled code (J in compressed columns, ``position``
+    from ``band_order``, the curvature as triplets between free variables); no_band_factors()
+    where the system is singular."""
     n, rows = indptr.size - 1, position.size - (indptr.size - 1)
     count = 0
     for j in range(n):
         count += free[j]
     if count < rows:
         return no_band_factors()
-    none = np.zeros(0, dtype=np.int64)
-    kept, reduced, half, band, pivots, info = _factored_band(dgbtrf, indptr, indices, data, w, free, position, none,
-                                                             none, np.zeros(0))
+    kept, reduced, half, band, pivots, info = _factored_band(dgbtrf, indptr, indices, data, w, free, position,
+                                                             curvature_rows, curvature_columns, curvature_values)
     if info != 0:
         return no_band_factors()
     return band, half, pivots, kept, reduced, free.copy()
+
+
+@numba.njit(cache=True)
+def plain_band_factors(dgbtrf, indptr, indices, data, w, free, position):  # pragma: no cover - compiled
+    """``band_factors`` without curvature (SaddleFactor(J, w, free))."""
+    none = np.zeros(0, dtype=np.int64)
+    return band_factors(dgbtrf, indptr, indices, data, w, free, position, none, none, np.zeros(0))
 
 
 @numba.njit(cache=True)
