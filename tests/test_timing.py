@@ -140,3 +140,43 @@ def test_the_first_forward_check_loads_nothing_in_its_time(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     report = __import__("json").loads(run.stdout.strip().splitlines()[-1])
     assert report["during"] == [[], []] and report["warm"] >= 1 and report["held"] == [True, True]
+
+
+NOTHING_AFTER_THE_WARM_UP = """
+import json
+import numba.core.dispatcher as dispatcher
+import sagfree
+from sagfree.formulation import compiled
+from sagfree.frontend import warm
+from sagfree.scenes.head import HEAD, head_groom
+batches = [(sagfree.scenes.groom(400, 100, seed=0), {}),
+           ([sagfree.Strand(s.points, tip="pinned") for s in sagfree.scenes.groom(30, 100, seed=1)], {}),
+           (head_groom(40, 100, seed=0), {"bodies": [HEAD]})]
+for _, options in batches:
+    warm.warm_up("asc", problem_options=options)
+loads = []
+for owner, name in ((dispatcher.Dispatcher, "compile"), (compiled, "compile_library")):
+    def counting(*args, _original=getattr(owner, name), _name=name):
+        loads.append(_name)
+        return _original(*args)
+    setattr(owner, name, counting)
+during, converged = [], []
+for strands, options in batches:
+    before = len(loads)
+    results = sagfree.optimize(strands, jobs=1, **options)
+    during.append(len(loads) - before)
+    converged.append(sum(r.status == "converged" for r in results) == len(strands))
+print(json.dumps({"during": during, "converged": converged}))
+"""
+
+
+def test_nothing_compiles_or_loads_after_the_warm_up(tmp_path):
+    """After the warm-up a batch compiles or loads no kernel: on a groom (whose stabilization
+    re-solves reach the infeasibility certificate), on strands with a pinned tip (whose
+    stabilization takes its Python steps) and on a head. Each of those loaded kernels inside a
+    timed solve before the warm-up ran their paths."""
+    run = subprocess.run([sys.executable, "-c", NOTHING_AFTER_THE_WARM_UP], capture_output=True, text=True,
+                         timeout=600, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = __import__("json").loads(run.stdout.strip().splitlines()[-1])
+    assert report["during"] == [0, 0, 0] and report["converged"] == [True, True, True]

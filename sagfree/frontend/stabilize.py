@@ -208,13 +208,16 @@ def _verdict(ending: str, message: str, value: float, margin: float) -> tuple[st
 
 def warm_floor_steps(problem: Problem) -> None:
     """One round of floors from asc's optimum of ``problem``, whatever its stability, its floors
-    thrown away, and the compiled loop of rounds from there: the warm-up's way (frontend.warm) to
-    compile or load their kernels in this process before anything is timed."""
+    thrown away, both ways (the compiled round of a strand held by its root alone, the Python
+    steps of the others: a held tip, bodies), and the compiled loop of rounds from there: the
+    warm-up's way (frontend.warm) to compile or load their kernels in this process before anything
+    is timed."""
     result = solve_alm(problem)
     if result.status == "converged":
         value, mode = problem.stability(result.p, vector=True)
         stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
         _next_floors(problem, result.p, value, mode, stiffness)
+        _raised_floors(problem, result.p, value, mode, stiffness)
         stabilization_rounds(problem, result.p, value, mode, stiffness, problem.stability_margin, OVERSHOOT,
                              RELEVANT, FLOOR_STEPS, 1, TOL, KKT_TOL)
 

@@ -13,8 +13,8 @@ bodies' tangent planes): with bodies, the warm-up strand rests on the first of t
 warm-up strand, held by its root alone, starts at its optimum, and the first strand that needed a
 Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
 prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP,
-the stabilization's compiled round (the warm-up strand is stable), the many-right-hand-side band
-solve of the least sag (the warm-up strand is feasible). On a machine whose caches do not
+the infeasibility certificate, the stabilization's rounds (the warm-up strand is stable), the
+many-right-hand-side band solve of the least sag (the warm-up strand is feasible). On a machine whose caches do not
 hold this code's kernels yet, the first warm-up runs once in a child interpreter first (priming), so
 that the process that solves, and the workers it forks, load the kernels instead of carrying a compile.
 The forward check has its own (``warm_check``), which the batch's ``simulate_strands`` runs before
@@ -35,6 +35,7 @@ from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
 from sagfree.linalg import cholesky
 from sagfree.solvers import interior_point
+from sagfree.solvers.statics_start import unbalanceable
 
 from .priming import primed_in_child
 from .stabilize import solve_stabilized, warm_floor_steps
@@ -185,13 +186,17 @@ def _check_warm_strand(problem_options: dict) -> None:
 def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict) -> None:
     """The warm-up strand solved, then its constraints' curvature evaluated once (asc's Newton-SQP,
     for held tips and long strands, builds those stencils on first use, inside the first such
-    strand's Result.time otherwise) and a stabilization round taken from its optimum (the warm-up
-    strand is stable, and the round's compiled kernels, floor_steps, otherwise compile or load in
+    strand's Result.time otherwise), the infeasibility certificate checked (solvers.statics_start:
+    only strands that fail their start reach it) and a stabilization round taken from its optimum
+    (the warm-up strand is stable, and the round's kernels, floor_steps, otherwise compile or load in
     the first stabilized strand of each worker of a batch)."""
     problem = _warm_strand(problem_options)
     options = {**_structure_options(solver_options), **entry.warm_options}
     for path in ({}, *entry.warm_paths):
         solve_stabilized(entry.function, problem, {**options, **path})
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
+    change = problem.remembered("least rest change")
+    if change is not None:  # the infeasibility certificate's kernels (a feasible strand's solve skips it)
+        unbalanceable(problem, change)
     if problem.stabilize:
         warm_floor_steps(problem)
