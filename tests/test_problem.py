@@ -5,13 +5,15 @@ import scipy.linalg
 import scipy.sparse as sp
 
 import sagfree
-from sagfree.formulation import dofs
+from sagfree.formulation import dofs, jacobian
 from sagfree.formulation.curvature import VARIANTS
 from sagfree.formulation.frames import transport_frames
 from sagfree.formulation.rest_geometry import RestGeometry, rest_geometry, rest_geometry_numpy
 from sagfree.formulation.verification import (gradient_error, jacobian_error, perturbed_parameters,
                                               verification_strands)
 from sagfree.linalg.eigen import smallest_eigenpair
+from sagfree.linalg.identity import IdentityMemo
+from sagfree.scenes.head import HEAD, head_groom
 
 SCENES = {
     "horizontal": lambda: sagfree.scenes.horizontal(n=30),
@@ -118,6 +120,55 @@ def test_strand_jacobian_products_match_the_sparse_matrix(stiffness, rng):
         assert np.allclose(fast_product, product, rtol=1e-12, atol=1e-12 * np.abs(product).max())
     indptr, indices, data = fast.csr()
     assert np.array_equal(sp.csr_matrix((data, indices, indptr), shape=J.shape).toarray(), J.toarray())
+
+
+def _pattern_by_numpy(free_row, n_rows, n_parameters, stencils):
+    """jacobian._structure's arrays by np.unique and scipy's CSR conversion (its former code)."""
+    rows, cols, sources, coefficients, dofs_, offset, coefficient_offset = [], [], [], [], [], 0, 0
+    for dof_index, slots in stencils:
+        count, width = dof_index.shape
+        shape = (count, width, slots.index.shape[1])
+        row = np.broadcast_to(free_row[dof_index][:, :, None], shape)
+        col = np.broadcast_to(slots.index[:, None, :], shape)
+        keep = (row >= 0) & (col >= 0)
+        rows.append(row[keep])
+        cols.append(col[keep])
+        sources.append(offset + np.flatnonzero(keep.ravel()))
+        stencil, _, slot = np.nonzero(keep)
+        coefficients.append(coefficient_offset + stencil * shape[2] + slot)
+        dofs_.append(np.broadcast_to(dof_index[:, :, None], shape)[keep])
+        offset += keep.size
+        coefficient_offset += count * shape[2]
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    unique, target = np.unique(cols.astype(np.int64) * n_rows + rows, return_inverse=True)
+    indices = unique % n_rows
+    indptr = np.searchsorted(unique // n_rows, np.arange(n_parameters + 1))
+    order = sp.csc_matrix((np.arange(unique.size, dtype=float), indices, indptr), shape=(n_rows, n_parameters)).tocsr()
+    order.sort_indices()
+    return (target, np.concatenate(sources), indices, indptr, order.indptr, order.indices, order.data.astype(int),
+            (np.concatenate(coefficients), np.concatenate(dofs_)))
+
+
+@pytest.mark.parametrize("make", [
+    lambda: sagfree.Problem(sagfree.scenes.groom(1, 40, seed=2)[0]),
+    lambda: sagfree.Problem(head_groom(1, 60, seed=5)[0], bodies=[HEAD], friction=0.5),
+    lambda: sagfree.Problem(sagfree.Strand(sagfree.scenes.curly(n=30).points, tip="pinned", pins=[7])),
+    lambda: sagfree.Problem(sagfree.scenes.groom(1, 40, seed=1)[0], stiffness="strand"),
+    lambda: sagfree.Problem(sagfree.scenes.groom(1, 3, seed=0)[0]),
+], ids=["groom", "head-friction", "pinned", "strand", "three-vertices"])
+def test_the_compiled_jacobian_pattern_is_numpys(make, monkeypatch):
+    """jacobian._structure (counting sorts, compiled) against np.unique and scipy's CSR, entry by
+    entry, on a fresh pattern of each kind (a strand on a body has contact columns of its own)."""
+    calls = []
+    monkeypatch.setattr(jacobian, "_STRUCTURES", {})
+    monkeypatch.setattr(jacobian, "_STRUCTURES_BY_ARRAYS", IdentityMemo())
+    compiled = jacobian._structure
+    monkeypatch.setattr(jacobian, "_structure", lambda *args: calls.append(args) or compiled(*args))
+    make()
+    assert len(calls) == 1
+    mine, reference = jacobian._structure(*calls[0]), _pattern_by_numpy(*calls[0])
+    for a, b in zip((*mine[:7], *mine[7]), (*reference[:7], *reference[7])):
+        assert a.dtype == np.int64 and np.array_equal(a, b)
 
 
 def test_energies_are_invariant_under_rigid_rotation(rng):
