@@ -133,11 +133,10 @@ from sagfree.linalg.saddle import SaddleFactor, constrained_step
 from sagfree.linalg.square import square_column_solve
 from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
-from . import gauss_newton
+from . import gauss_newton, outer_loop
 from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, DAMPING, INNER_STEPS, MAX_ITERATIONS,
                            MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
 from .mprgp import PRECONDITIONERS, solve_box_qp
-from . import outer_loop
 from .multipliers import least_squares_multipliers
 from .outer_loop import (MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS, NEWTON_NEAR,
                          NEWTON_STEPS, SQP_DECREASE)

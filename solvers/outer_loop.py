@@ -150,9 +150,10 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
 
 @numba.njit(cache=True)
 def _outer(forces_args, jacobian_args, curvature_args, free, row_scale, structure, position, dgbtrf, dgbtrs, clock,
-           clock_id, w, p0, lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol, gradient_tol, max_outer,
-           max_iterations, deadline, mu0, mu_growth, qp_rtol, precond, border, active_set_steps, walking, real,
-           integer, counts, outer_counts, seconds, history):  # pragma: no cover - compiled
+           clock_id, w, p0, lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol,
+           gradient_tol, max_outer, max_iterations, deadline, mu0, mu_growth, qp_rtol, precond, border,
+           active_set_steps, walking, real, integer, counts, outer_counts, seconds,
+           history):  # pragma: no cover - compiled
     """The loop of ``outer_iterations`` (solve_alm's, line by line). real: [mu, omega, target,
     previous violation, violation, distance] and integer: [feasible rounds, Newton attempts,
     converged, stalls, inner reason, QP status, history entries, moved] are read and written in
@@ -264,8 +265,8 @@ def _outer(forces_args, jacobian_args, curvature_args, free, row_scale, structur
         previous_violation = violation
         omega = max(target, 0.1 * omega)
     real[0], real[1], real[2], real[3], real[4], real[5] = mu, omega, target, previous_violation, violation, distance
-    integer[0], integer[1], integer[2], integer[3], integer[6], integer[7] = (feasible_rounds, attempts, converged, stalls,
-                                                                              recorded, moved_any)
+    integer[0], integer[1], integer[2], integer[3] = feasible_rounds, attempts, converged, stalls
+    integer[6], integer[7] = recorded, moved_any
     return event, p, c, f, values, scale, lam, nearby
 
 
@@ -333,8 +334,9 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
                 dgbtrs, w, p0, lower, upper, p, c, values, tol, kkt_tol, clock, clock_id, outer_counts, seconds,
                 halvings):  # pragma: no cover - compiled
     """alm._newton_sqp: (found, p, c, f, dc/dp values, KKT distance) after at most NEWTON_STEPS
-    exact-Hessian SQP steps from p (c and dc/dp ``values`` there); found only where they end at |c|_inf <= tol, a KKT distance
-    <= kkt_tol and R no larger than at p (plus rounding). Counts its steps in outer_counts[3]."""
+    exact-Hessian SQP steps from p (c and dc/dp ``values`` there); found only where they end at
+    |c|_inf <= tol, a KKT distance <= kkt_tol and R no larger than at p (plus rounding). Counts its
+    steps in outer_counts[3]."""
     buffer = np.zeros(2, dtype=np.int64)
     n = p.size
     work = np.empty(n)
