@@ -3,9 +3,9 @@ size, and the preconditioner ablation.
 
     python benchmarks/bench_solver.py [--strands 1900] [--vertices 100] [--jobs N] [--before REV]
                                       [--repeats 2] [--sizes 25,100,400,1000,2000] [--size-strands 10]
-                                      [--ablation 10]
+                                      [--pinned-strands 3] [--ablation 10]
 
-Prints three tables, all measured in this run:
+Prints three tables (and 2b), all measured in this run:
 1. the whole groom (``groom(1900, 100, seed=0)``, element stiffness, default boxes, stability on) on
    all cores after a warm-up batch: wall time, strands converged and stable, the ratio to the
    predecessor paper's published 11.2 s for 1.9K strands x 100 vertices (measured there on a larger
@@ -19,7 +19,9 @@ Prints three tables, all measured in this run:
    ``optimize(jobs=1)`` per strand (everything a user waits for: the Problem, the solve, the
    stability of its Result) and per vertex (flat = linear growth), the mean ``Result.time`` (the
    solve alone: solvers are compared on it), Gauss-Newton, SQP and Newton-SQP steps, QP
-   factorizations per Gauss-Newton step, converged and stable;
+   factorizations per Gauss-Newton step, converged and stable; 2b. the same with the strands' tips
+   pinned (``--pinned-strands`` of them per size): a strand held at both ends runs asc's outer
+   loop and, when long, Newton-SQP, where the root-held ones are confirmed at their start;
 3. the preconditioner ablation on a subset: active-set Cholesky vs Jacobi vs none, with CG
    iterations, expansions, factorizations, time and the ratio to the active-set Cholesky, along
    the Gauss-Newton path (``start="linear"``: from the statics start a root-held strand needs no QP).
@@ -137,13 +139,17 @@ def groom_table(strands: int, vertices: int, jobs: int, before: str, repeats: in
         print(f"   {k:16} {v.mean():9.1f} {v.max():9d}")
 
 
-def size_table(sizes, strands: int) -> None:
-    print(f"\n2. time per strand against strand size ({strands} groom strands per size, one core)")
+def size_table(sizes, strands: int, tip: str | None = None, title: str = "2.") -> None:
+    """The size table: ``strands`` groom strands per size, held by their root alone or (``tip``)
+    with that tip attachment too, whose solves run asc's outer loop (Newton-SQP on long ones)."""
+    held = f", tips {tip}" if tip else ""
+    print(f"\n{title} time per strand against strand size ({strands} groom strands per size{held}, one core)")
     print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'solve ms':>9} {'GN steps':>9} {'SQP':>5} "
           f"{'Newton':>7} {'factor./GN':>11} {'converged':>10} {'stable':>7}")
     notes = []  # warnings (the radius above an edge length of some long groom strands), after the table
     for n in sizes:
         groom = sagfree.scenes.groom(strands, n, seed=0)
+        groom = [strand.attached(tip=tip) for strand in groom] if tip else groom
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the warm-up's: the batch's own are recorded below
             sagfree.optimize(groom[:1], jobs=1)
@@ -194,10 +200,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2, help="alternating runs of each code in table 1")
     parser.add_argument("--sizes", default="25,100,400,1000,2000", help="strand sizes of table 2")
     parser.add_argument("--size-strands", type=int, default=10, help="strands per size in table 2")
+    parser.add_argument("--pinned-strands", type=int, default=3, help="strands per size in table 2b ('0' = skip)")
     parser.add_argument("--ablation", type=int, default=10, help="strands in table 3")
     args = parser.parse_args()
     groom_table(args.strands, args.vertices, args.jobs, args.before, args.repeats)
-    size_table([int(n) for n in args.sizes.split(",")], args.size_strands)
+    sizes = [int(n) for n in args.sizes.split(",")]
+    size_table(sizes, args.size_strands)
+    if args.pinned_strands:
+        size_table(sizes, args.pinned_strands, tip="pinned", title="2b.")
     ablation_table(args.ablation, args.vertices)
 
 
