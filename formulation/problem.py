@@ -543,8 +543,8 @@ class Problem:
     def curvature_kernels(self):
         """The arguments after (p, lam) of at_rest.constraint_hessian_entries, which evaluates
         ``constraint_hessian_entries`` in one compiled call, or None where its stencils or the
-        at_rest kernels are not compiled. Built on first use: only Newton-SQP needs the
-        constraints' curvature (the warm-up loads its library in every process that solves)."""
+        at_rest kernels are not compiled. Built on first use (asc's compiled outer loop takes them
+        for its Newton-SQP; the warm-up loads their library in every process that solves)."""
         compiled = self._compiled_at_rest
         functions = parameter_hessians(self.curvature, self.energies)
         if compiled is None or not (functions.edge.compiled and functions.vertex.compiled):

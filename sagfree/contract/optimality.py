@@ -161,7 +161,7 @@ def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w,
     for _ in range(10):
         singular, refined = False, False
         d, lam = np.empty(0), np.empty(0)
-        if refine:  # a changed working set needs its own factorization
+        if refine:  # the first working set only: a changed one needs its own factorization
             refine = False
             refined, d, lam = refined_band_solution(dgbtrs, factors, half, pivots, kept, reduced, indptr, indices,
                                                      data, w, ~active, regularizer_gradient, c, REFINED_DISTANCE,

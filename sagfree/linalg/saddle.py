@@ -290,7 +290,7 @@ def _band_solution(dgbtrs, factors, half, pivots, kept, position, gradient, c, n
 
 @numba.njit(cache=True)
 def refined_band_solution(dgbtrs, factors, half, pivots, kept, position, indptr, indices, data, w, free, gradient,
-                           c, accuracy, refinements, refined):  # pragma: no cover - compiled
+                          c, accuracy, refinements, refined):  # pragma: no cover - compiled
     """(converged, d, lam) of SaddleFactor.solve_nearby's refinement on the band factors, for the
     Jacobian (indptr, indices, data) in compressed columns."""
     n, rows = gradient.size, c.size
