@@ -25,9 +25,14 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     taken). Gauss-Newton's straight step leaves the curved valley of the bilinear products stiffness
     x (kbar - kappa*) along which the optimum trades (the Maratos effect), and the halvings crawled
     (on 25-vertex groom strands the correction took the Gauss-Newton steps from 6.2 to 3.9 per
-    strand, to the same optima). The whole inner solve is
-    one compiled call where the model is compiled (solvers.gauss_newton); _inner_solve_python is
-    the same loop step for step, for the rest (no C compiler).
+    strand, to the same optima). On a strand held at both ends (a tip or pins, off bodies), once
+    |c|_inf <= 1e-2 the Hessian also takes the constraints' curvature sum_r (lam + mu c)_r c_r''
+    (the augmented Lagrangian's exact Hessian, shifted on its diagonal where it is not definite:
+    gauss_newton.curved_hessian): there the internal forces are not fixed by statics, Gauss-Newton
+    crawled along the curvature it omits, and long strands with a pinned tip ended max_iterations
+    (1000 vertices, 3 strands: 1 of 3; with the curvature all converge in 2 Gauss-Newton steps).
+    The whole inner solve is one compiled call where the model is compiled (solvers.gauss_newton);
+    _inner_solve_python is the same loop step for step, for the rest (no C compiler).
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
     stiffened where it leaves the boxes (linear_start), with least-squares multipliers. For a strand
     held by its root alone that change is the only balancing one, and each element's multiplier is
@@ -128,14 +133,15 @@ from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.parameters import CONTACT_BLOCK, REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import spread_rest_change, stiffest
-from sagfree.linalg.band import column_norms, gram
+from sagfree.linalg.band import BorderedBand, column_norms, gram
 from sagfree.linalg.saddle import SaddleFactor, constrained_step
 from sagfree.linalg.square import square_column_solve
 from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
 from . import gauss_newton, outer_loop
-from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, DAMPING, INNER_STEPS, MAX_ITERATIONS,
-                           MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET, InnerState)
+from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, CURVATURE_NEAR, DAMPING, INNER_STEPS,
+                           MAX_ITERATIONS, MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET,
+                           InnerState)
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
 from .outer_loop import (MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS, NEWTON_NEAR,
@@ -420,6 +426,7 @@ def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam,
     steps_before = counts["gauss_newton"]
     progress: list[tuple[float, float]] = []  # (|c|_inf, pi) before each step of this inner solve
     reason, qp_status = TARGET, ""
+    curved = gauss_newton.curvature_applies(problem, model.border)
     while True:
         gradient = model.w * (p - model.p0) + J.T @ (lam + mu * c)
         optimality = scaled_projected_gradient(p, gradient, scale, lower, upper)
@@ -445,6 +452,9 @@ def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam,
         start_step = _on_previous_bounds(state.at_lower, state.at_upper, d_lower, d_upper)
         for damping in DAMPING:  # escalate only if rounding breaks the factorization
             hessian = model.hessian(J, mu, damping)
+            if curved and progress[-1][0] <= CURVATURE_NEAR:  # gauss_newton.curved_hessian
+                exact = gauss_newton.curved_hessian(hessian.band, *problem.constraint_hessian_entries(p, lam + mu * c))
+                hessian = BorderedBand(exact, hessian.border, hessian.corner) if exact.size else hessian
             qp = solve_box_qp(hessian, -gradient, d_lower, d_upper, x0=start_step, rtol=qp_rtol,
                               preconditioner=preconditioner)
             if qp.status != "not_positive_definite":

@@ -51,6 +51,7 @@ CRAWL_WINDOW = 5  # ... fewer when the last CRAWL_WINDOW steps reduced neither |
 CRAWL_DROP = 0.9  # ... by at least 10%
 CRAWL_NEAR = 100.0  # ... where |c|_inf <= CRAWL_NEAR tol (far from it, the infeasibility test needs the full solve)
 QP_MAX_ITERATIONS = 10_000  # solve_box_qp's default
+CURVATURE_NEAR = 1e-2  # |c|_inf at or below which a strand held at both ends adds c's curvature (curved_hessian)
 
 # why an inner solve stopped (``inner_solve``): the first three are decided by solve_alm's outer loop
 TARGET, CRAWL, NO_PROGRESS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED = range(6)
@@ -63,8 +64,54 @@ _QP_COUNTS = (mprgp.CG, mprgp.EXPANSION, mprgp.PROPORTIONING, mprgp.ACTIVE_SET, 
 
 
 def available(problem: Problem) -> bool:
-    """True where ``inner_solve`` can run on ``problem`` (compiled stencils, a clock)."""
-    return timing.CLOCK is not None and problem.at_rest_kernels is not None
+    """True where ``inner_solve`` can run on ``problem`` (compiled stencils and constraint
+    curvature, a clock)."""
+    return (timing.CLOCK is not None and problem.at_rest_kernels is not None
+            and problem.curvature_kernels is not None)
+
+
+def curvature_applies(problem: Problem, border: int) -> bool:
+    """True where the inner Hessian takes the constraints' curvature near feasibility
+    (curved_hessian): a strand held at both ends (a tip or pins) off bodies, per-element stiffness."""
+    strand = problem.strand
+    return (border == 0 and not problem.bodies and (strand.tip is not None or len(strand.pins) > 0)
+            and problem.curvature_kernels is not None)
+
+
+@numba.njit(cache=True)
+def curved_hessian(band, rows, columns, values):  # pragma: no cover - compiled
+    """The Gauss-Newton Hessian's band (no border) plus the constraints' curvature sum_r (lam + mu
+    c)_r c_r'' (its (rows, columns, values) triplets, both triangles: the lower one is added), the
+    exact Hessian of the augmented Lagrangian, shifted where it is not definite by tau |H_GN,jj| on
+    the diagonal, tau = 0, then 1e-8 up to 1 tenfold, the first whose Cholesky goes through; empty
+    where none does or a triplet lies outside the band (the caller keeps Gauss-Newton's).
+
+    Why: on a strand held at both ends the internal forces are not fixed by statics, and along the
+    feasible set the optimum trades through the curvature that Gauss-Newton omits: it crawled
+    there, and Newton-SQP's equality-constrained steps left the box (1000-vertex strands with a
+    pinned tip ended max_iterations; benchmarks/RESULTS.md, 2026-12-05). Far from feasibility
+    (|c|_inf > CURVATURE_NEAR) lam + mu c is large and the curvature misleads (from p0 it held
+    |c|_inf near 1 for 100 steps); on bodies it doubled the work."""
+    half, nb = band.shape[0] - 1, band.shape[1]
+    curved = band.copy()
+    for k in range(rows.size):
+        if rows[k] < columns[k]:
+            continue
+        offset = rows[k] - columns[k]
+        if offset > half:
+            return np.empty((0, 0))
+        curved[offset, columns[k]] += values[k]
+    shifted = curved.copy()
+    factor, no_border, no_corner = np.empty((nb, half + 1)), np.zeros((0, nb)), np.zeros((0, 0))
+    free = np.ones(nb, dtype=np.bool_)
+    tau = 0.0
+    while tau <= 1.0:
+        for j in range(nb):
+            shifted[0, j] = curved[0, j] + tau * abs(band[0, j])
+        if factor_active(shifted, no_border, no_corner, free, factor, no_border, no_corner, 0, 0):
+            return shifted
+        tau = 1e-8 if tau == 0.0 else 10.0 * tau
+    return np.empty((0, 0))
 
 
 class InnerState:
@@ -104,7 +151,8 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
     clock, clock_id = timing.CLOCK
     deadline -= timing.clock_offset()  # on the loop's clock
     (reason, qp_status, optimality, stalled, moved, recorded, p, c, f, values, scale) = inner_loop(
-        forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, model.w, model.p0,
+        forces_args, jacobian_args, problem.curvature_kernels, curvature_applies(problem, border), free, row_scale,
+        structure, clock, clock_id, model.w, model.p0,
         lower, upper, p, c, data, scale, lam, float(mu),
         float(omega), float(tol), int(max_iterations), float(deadline), float(qp_rtol),
         mprgp.PRECONDITIONERS[preconditioner], border, active_set_steps, mprgp.WALKING, state.at_lower,
@@ -197,9 +245,9 @@ def _lagrangian_optimality(w, p, p0, indptr, indices, data, lam, mu, c, scale, l
 
 
 @numba.njit(cache=True)
-def inner_loop(forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, w, p0, lower, upper, p, c,
-               values, scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border,
-               active_set_steps, walking, at_lower, at_upper, counts, seconds, steps):  # pragma: no cover
+def inner_loop(forces_args, jacobian_args, curvature_args, curved, free, row_scale, structure, clock, clock_id, w,
+               p0, lower, upper, p, c, values, scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond,
+               border, active_set_steps, walking, at_lower, at_upper, counts, seconds, steps):  # pragma: no cover
     """The loop of ``inner_solve`` (alm._inner_solve_python line by line; solvers.outer_loop calls it
     directly, whose first test is inner_solve's own); counts in COUNTED order,
     seconds [model, linear algebra] accumulated, steps receives |c|_inf after each accepted step.
@@ -254,6 +302,18 @@ def inner_loop(forces_args, jacobian_args, free, row_scale, structure, clock, cl
             for j in range(n):
                 diagonal[j] = (w[j] + 1e-12) + damping * mu * norms[j]
             band, band_border, corner = gram_arrays(csr_indptr, csr_indices, csr_values, diagonal, mu, border)
+            if curved and violation <= CURVATURE_NEAR:  # the augmented Lagrangian's exact Hessian (curved_hessian)
+                started_model = timing.clock_seconds(clock, clock_id, buffer)
+                weights = np.empty(c.size)
+                for r in range(c.size):
+                    weights[r] = lam[r] + mu * c[r]
+                rows, columns, entries = at_rest.constraint_hessian_entries(p, weights, *curvature_args)
+                model_seconds = timing.clock_seconds(clock, clock_id, buffer) - started_model
+                seconds[0] += model_seconds
+                started += model_seconds  # linear algebra's clock leaves it out
+                exact = curved_hessian(band, rows, columns, entries)
+                if exact.size:
+                    band = exact
             qp_counts[:] = 0
             # np.int64: a global int passed on is a literal type, and box_qp (with MPRGP inside) would be
             # compiled a second time for it

@@ -124,8 +124,8 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
     steps = np.empty(max_iterations + 2 * max_outer + 2)
     clock, clock_id = timing.CLOCK
     event, p, c, f, values, scale, lam, nearby = _outer(
-        forces_args, jacobian_args, problem.curvature_kernels, free, row_scale, structure, position, lapack.DGBTRF,
-        lapack.DGBTRS, clock, clock_id, model.w, model.p0, lower, upper, np.ascontiguousarray(p, dtype=float),
+        forces_args, jacobian_args, problem.curvature_kernels, gauss_newton.curvature_applies(problem, border), free,
+        row_scale, structure, position, lapack.DGBTRF, lapack.DGBTRS, clock, clock_id, model.w, model.p0, lower, upper, np.ascontiguousarray(p, dtype=float),
         np.ascontiguousarray(c, dtype=float), J.csc()[2], np.ascontiguousarray(scale, dtype=float),
         np.ascontiguousarray(lam, dtype=float), at_lower, at_upper, no_band_factors() if nearby is None else nearby,
         float(tol), float(kkt_tol), float(gradient_tol), int(max_outer), int(max_iterations),
@@ -149,8 +149,8 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
 
 
 @numba.njit(cache=True)
-def _outer(forces_args, jacobian_args, curvature_args, free, row_scale, structure, position, dgbtrf, dgbtrs, clock,
-           clock_id, w, p0, lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol,
+def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, structure, position, dgbtrf, dgbtrs,
+           clock, clock_id, w, p0, lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol,
            gradient_tol, max_outer, max_iterations, deadline, mu0, mu_growth, qp_rtol, precond, border,
            active_set_steps, walking, real, integer, counts, outer_counts, seconds,
            history):  # pragma: no cover - compiled
@@ -158,7 +158,8 @@ def _outer(forces_args, jacobian_args, curvature_args, free, row_scale, structur
     previous violation, violation, distance] and integer: [feasible rounds, Newton attempts,
     converged, stalls, inner reason, QP status, history entries, moved] are read and written in
     place; counts in gauss_newton.COUNTED order, outer_counts in OUTER_COUNTED order; curvature_args:
-    Problem.curvature_kernels (Newton-SQP's constraint curvature); seconds
+    Problem.curvature_kernels (Newton-SQP's constraint curvature, and the inner Hessian's where
+    ``curved``: gauss_newton.curvature_applies); seconds
     [model, linear algebra]. Returns (event, p, c, f(p) or empty if p did not move, dc/dp values,
     scale, lam, nearby)."""
     indptr, indices = structure[0], structure[1]
@@ -177,9 +178,9 @@ def _outer(forces_args, jacobian_args, curvature_args, free, row_scale, structur
         steps_before = counts[0]
         (reason, qp_status, optimality, stalled, moved, taken, p_inner, c_inner, f_inner, values_inner,
          scale_inner) = gauss_newton.inner_loop(
-            forces_args, jacobian_args, free, row_scale, structure, clock, clock_id, w, p0, lower, upper, p, c, values,
-            scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border, active_set_steps, walking,
-            at_lower, at_upper, counts, seconds, steps)
+            forces_args, jacobian_args, curvature_args, curved, free, row_scale, structure, clock, clock_id, w, p0,
+            lower, upper, p, c, values, scale, lam, mu, omega, tol, max_iterations, deadline, qp_rtol, precond, border,
+            active_set_steps, walking, at_lower, at_upper, counts, seconds, steps)
         for k in range(taken):
             history[recorded + k] = steps[k]
         recorded += taken
