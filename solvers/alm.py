@@ -30,7 +30,8 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     (the augmented Lagrangian's exact Hessian, shifted on its diagonal where it is not definite:
     gauss_newton.curved_hessian): there the internal forces are not fixed by statics, Gauss-Newton
     crawled along the curvature it omits, and long strands with a pinned tip ended max_iterations
-    (1000 vertices, 3 strands: 1 of 3; with the curvature all converge in 2 Gauss-Newton steps).
+    (groom(3, 100, seed=2) resampled to 1000 vertices, tips pinned: 1 of 3; with the curvature all
+    three converge, 43 us per vertex).
     The whole inner solve is one compiled call where the model is compiled (solvers.gauss_newton);
     _inner_solve_python is the same loop step for step, for the rest (no C compiler).
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
