@@ -30,8 +30,7 @@ Inner loop (primal): Gauss-Newton on L with the banded Hessian H = diag(w) + mu 
     (the augmented Lagrangian's exact Hessian, shifted on its diagonal where it is not definite:
     gauss_newton.curved_hessian): there the internal forces are not fixed by statics, Gauss-Newton
     crawled along the curvature it omits, and long strands with a pinned tip ended max_iterations
-    (groom(3, 100, seed=2) resampled to 1000 vertices, tips pinned: 1 of 3; with the curvature all
-    three converge, 43 us per vertex).
+    (benchmarks/RESULTS.md, 2026-12-05).
     The whole inner solve is one compiled call where the model is compiled (solvers.gauss_newton);
     _inner_solve_python is the same loop step for step, for the rest (no C compiler).
 Start: per-element stiffness starts from the least rest-shape change that balances gravity,
@@ -451,10 +450,12 @@ def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam,
         # warm start: the bounds active in the previous step's QP are active again
         d_lower, d_upper = lower - p, upper - p
         start_step = _on_previous_bounds(state.at_lower, state.at_upper, d_lower, d_upper)
+        curvature = (problem.constraint_hessian_entries(p, lam + mu * c)  # gauss_newton.curved_hessian
+                     if curved and progress[-1][0] <= CURVATURE_NEAR else None)
         for damping in DAMPING:  # escalate only if rounding breaks the factorization
             hessian = model.hessian(J, mu, damping)
-            if curved and progress[-1][0] <= CURVATURE_NEAR:  # gauss_newton.curved_hessian
-                exact = gauss_newton.curved_hessian(hessian.band, *problem.constraint_hessian_entries(p, lam + mu * c))
+            if curvature is not None:
+                exact = gauss_newton.curved_hessian(hessian.band, *curvature)
                 hessian = BorderedBand(exact, hessian.border, hessian.corner) if exact.size else hessian
             qp = solve_box_qp(hessian, -gradient, d_lower, d_upper, x0=start_step, rtol=qp_rtol,
                               preconditioner=preconditioner)
@@ -747,9 +748,8 @@ def least_residual(problem: Problem, starts: list[np.ndarray], counts: dict, qp_
     with the weights of c. Its steps are counted as ``least_residual``. Their QPs stop at a relative
     projected gradient of max(qp_rtol, LEAST_RESIDUAL_QP_RTOL): a Levenberg-Marquardt step needs a
     descent direction, not the QP's optimum, and the point is only the least sag's start (or the
-    augmented Lagrangian's restart, whose own QPs are tight). At 1e-10 the first QP of a
-    2000-vertex long hair walked its active set for 2,489 factorizations (10 s); at 1e-6 the whole
-    phase took 774, for the same sag.
+    augmented Lagrangian's restart, whose own QPs are tight): at 1e-10 the phase took 4.6 times the
+    factorizations on a 2000-vertex long hair, for the same sag (benchmarks/RESULTS.md).
     """
     qp_rtol = max(qp_rtol, LEAST_RESIDUAL_QP_RTOL)
     best, lowest = None, np.inf

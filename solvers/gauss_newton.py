@@ -89,9 +89,9 @@ def curved_hessian(band, rows, columns, values):  # pragma: no cover - compiled
     Why: on a strand held at both ends the internal forces are not fixed by statics, and along the
     feasible set the optimum trades through the curvature that Gauss-Newton omits: it crawled
     there, and Newton-SQP's equality-constrained steps left the box (1000-vertex strands with a
-    pinned tip ended max_iterations; benchmarks/RESULTS.md, 2026-12-05). Far from feasibility
-    (|c|_inf > CURVATURE_NEAR) lam + mu c is large and the curvature misleads (from p0 it held
-    |c|_inf near 1 for 100 steps); on bodies it doubled the work."""
+    pinned tip ended max_iterations). Far from feasibility (|c|_inf > CURVATURE_NEAR) lam + mu c
+    is large and the curvature misleads; on bodies it doubled the work (benchmarks/RESULTS.md,
+    2026-12-05)."""
     half, nb = band.shape[0] - 1, band.shape[1]
     curved = band.copy()
     for k in range(rows.size):
@@ -171,12 +171,19 @@ def inner_solve(problem: Problem, model, state: InnerState, lam, mu: float, omeg
 @numba.njit(cache=True)
 def _merit(w, p, p0, c, lam, mu, work):  # pragma: no cover - compiled
     """(L, the sum of its terms' magnitudes) as alm._Model.merit and merit_scale compute them."""
+    regularizer = regularizer_value(w, p, p0, work)
+    squares = 0.5 * mu * np.dot(c, c)
+    return regularizer + np.dot(lam, c) + squares, regularizer + np.dot(np.abs(lam), np.abs(c)) + squares
+
+
+@numba.njit(cache=True)
+def regularizer_value(w, p, p0, work):  # pragma: no cover - compiled
+    """R(p) = 1/2 sum w (p - p0)^2 as Problem.objective sums it (numpy's pairwise sum; work: scratch
+    of p's size)."""
     for j in range(p.size):
         d = p[j] - p0[j]
         work[j] = w[j] * d * d
-    regularizer = 0.5 * pairwise_sum(work)
-    squares = 0.5 * mu * np.dot(c, c)
-    return regularizer + np.dot(lam, c) + squares, regularizer + np.dot(np.abs(lam), np.abs(c)) + squares
+    return 0.5 * pairwise_sum(work)
 
 
 @numba.njit(cache=True)
@@ -259,6 +266,7 @@ def inner_loop(forces_args, jacobian_args, curvature_args, curved, free, row_sca
     recent = np.empty(INNER_STEPS + 1)
     progress_violation, progress_optimality = np.empty(INNER_STEPS + 1), np.empty(INNER_STEPS + 1)
     qp_counts = np.zeros(8, dtype=np.int64)
+    no_curvature = (np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), np.empty(0))
     f = np.empty(0)
     steps_before = counts[_GAUSS_NEWTON]
     stalled, recorded, tried, moved = 0, 0, 0, False
@@ -295,6 +303,15 @@ def inner_loop(forces_args, jacobian_args, curvature_args, curved, free, row_sca
             negative[j] = -gradient[j]
         norms = csc_column_norms(csc_indptr, values)
         csr_values = values[csr_order]
+        rows, columns, entries = no_curvature
+        near = curved and violation <= CURVATURE_NEAR  # the augmented Lagrangian's exact Hessian (curved_hessian)
+        if near:
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            weights = np.empty(c.size)
+            for r in range(c.size):
+                weights[r] = lam[r] + mu * c[r]
+            rows, columns, entries = at_rest.constraint_hessian_entries(p, weights, *curvature_args)
+            seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
         started = timing.clock_seconds(clock, clock_id, buffer)
         step = np.empty(0)
         for damping in DAMPING:  # escalate only if rounding breaks the factorization
@@ -302,15 +319,7 @@ def inner_loop(forces_args, jacobian_args, curvature_args, curved, free, row_sca
             for j in range(n):
                 diagonal[j] = (w[j] + 1e-12) + damping * mu * norms[j]
             band, band_border, corner = gram_arrays(csr_indptr, csr_indices, csr_values, diagonal, mu, border)
-            if curved and violation <= CURVATURE_NEAR:  # the augmented Lagrangian's exact Hessian (curved_hessian)
-                started_model = timing.clock_seconds(clock, clock_id, buffer)
-                weights = np.empty(c.size)
-                for r in range(c.size):
-                    weights[r] = lam[r] + mu * c[r]
-                rows, columns, entries = at_rest.constraint_hessian_entries(p, weights, *curvature_args)
-                model_seconds = timing.clock_seconds(clock, clock_id, buffer) - started_model
-                seconds[0] += model_seconds
-                started += model_seconds  # linear algebra's clock leaves it out
+            if near:
                 exact = curved_hessian(band, rows, columns, entries)
                 if exact.size:
                     band = exact

@@ -65,8 +65,6 @@ CONTINUATION_STEPS = 100
 #: strand, and made LSMR half of a 400-vertex strand's time; the step only needs a direction better
 #: than the gradient's: capped, the sag was the same or less on the strands measured).
 LSMR_ITERATIONS = 30
-#: Right-hand sides per block of StaticSag.column_norms' solves.
-NORM_BLOCK = 256
 #: Evaluations between rescalings (the Jacobian's column norms re-estimated where the minimization is).
 RESCALE_EVALUATIONS = 5
 #: Random sign vectors of StaticSag.estimated_column_norms (Hutchinson's estimator).
@@ -128,8 +126,7 @@ class StaticSag:
     def jacobian(self, p: np.ndarray) -> LinearOperator:
         """d residuals / dp = W P K^-1 B at the equilibrium of p (W: the residuals' weights, P: the
         position rows, K = d^2E/dq^2 on the free DOFs, B = D dc/dp there) as an operator: a product
-        with it or its transpose is one banded Cholesky solve and one sparse product, O(n)
-        (``dense_jacobian`` forms the matrix, 3n x parameters)."""
+        with it or its transpose is one banded Cholesky solve and one sparse product, O(n)."""
         factor, scaled = self._linearization(p)
         moving, rows, weight = self.moving, self.moving_rows, self.moving_weights
         transposed = scaled.T.tocsr()
@@ -145,31 +142,11 @@ class StaticSag:
         return LinearOperator((self.positions.size, p.size), matvec=product, rmatvec=transposed_product,
                               dtype=float)
 
-    def dense_jacobian(self, p: np.ndarray) -> np.ndarray:
-        """``jacobian(p)`` as a dense matrix (the reference the operator is checked against): by rows, as
-        (B^T K^-1 P^T W)^T (K is symmetric), K^-1 applied to the 3n weighted position rows at once
-        (``band_solve_many``): half the right-hand sides of K^-1 B's columns (6n parameters)."""
-        factor, scaled = self._linearization(p)
-        jacobian = np.zeros((self.positions.size, p.size))
-        for block, rows in self._weighted_rows():
-            jacobian[block] = (scaled.T @ band_solve_many(factor, rows)).T
-        return jacobian
-
-    def column_norms(self, p: np.ndarray) -> np.ndarray:
-        """|jacobian(p)[:, j]|_2 for every parameter j, exactly: the rows of W P K^-1 B, solved
-        NORM_BLOCK at a time (K is symmetric: B^T K^-1 P^T W), their squares summed per column.
-        3n solves, O(n^2): the reference ``estimated_column_norms`` is checked against."""
-        factor, scaled = self._linearization(p)
-        squares = np.zeros(p.size)
-        for _, rows in self._weighted_rows(NORM_BLOCK):
-            rows_of_jacobian = scaled.T @ band_solve_many(factor, rows)  # (parameters, block)
-            squares += np.einsum("jk,jk->j", rows_of_jacobian, rows_of_jacobian)
-        return np.sqrt(squares)
-
     def estimated_column_norms(self, p: np.ndarray, probes: int = NORM_PROBES, seed: int = 0) -> np.ndarray:
         """Hutchinson's estimate of the column norms: |J e_j|^2 = E[(J^T v)_j^2] over random signs v
         (3n residual rows), averaged over ``probes`` draws (a fixed ``seed``: the same p gives the
-        same scales), each J^T v one band solve: O(n probes) where the exact norms take 3n solves.
+        same scales), each J^T v one band solve: O(n probes) where the exact norms take 3n solves
+        (O(n^2)).
         Relative error about sqrt(2 / probes) (25% at 32), enough for variable scales that span
         ~1e7 between the blocks."""
         factor, scaled = self._linearization(p)
@@ -183,18 +160,6 @@ class StaticSag:
         pulled = np.zeros((self.problem.free_index.size,) + values.shape[1:])
         pulled[self.moving_rows] = self.moving_weights.reshape((-1,) + (1,) * (values.ndim - 1)) * values
         return pulled
-
-    def _weighted_rows(self, block_size: int | None = None):
-        """(residual rows, (P^T W) on the free DOFs for them) in blocks of ``block_size`` (None: one
-        block) over the moving rows: the right-hand sides whose K^-1 gives the Jacobian's rows (the
-        others stay zero)."""
-        free_size = self.problem.free_index.size
-        size = max(self.moving.size if block_size is None else block_size, 1)
-        for start in range(0, self.moving.size, size):
-            block = slice(start, start + size)
-            unit = np.zeros((free_size, self.moving[block].size))
-            unit[self.moving_rows[block], np.arange(unit.shape[1])] = self.moving_weights[block]
-            yield self.moving[block], unit
 
     def _linearization(self, p: np.ndarray):
         """(Cholesky factor of K, B) at the equilibrium of p (continued there if it is not the last

@@ -17,8 +17,7 @@ The infeasibility test and its best effort (the least residual's QPs, the static
 minimization through scipy) hand the iteration back to solve_alm, which takes them in Python
 and calls again if the solve goes on: a strand that reaches them is one the boxes cannot balance,
 whose best effort costs far more than the iterations. The strands of a groom on a head never
-do: every iteration of their solves runs here (4 outer iterations and one SQP step each on
-``head_groom(200, 100)``).
+do: every iteration of their solves runs here.
 
 It applies where the inner loop and the constraints' curvature are compiled (gauss_newton.available,
 Problem.curvature_kernels) and the saddle system is a band without a dense column (no strand
@@ -39,13 +38,12 @@ from sagfree.linalg import lapack, timing
 from sagfree.linalg.band import dense_count
 from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
 from sagfree.linalg.normal import seminormal_kernel
-from sagfree.linalg.pairwise import pairwise_sum
 from sagfree.linalg.saddle import (band_factors, band_order, no_band_factors, plain_band_factors,
                                    solve_band_factors)
 
 from . import gauss_newton, mprgp
 from .gauss_newton import (INNER_STEPS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED, STALL, at_rest_residual,
-                           largest_magnitude)
+                           largest_magnitude, regularizer_value)
 from .multipliers import SHIFT
 
 # why outer_iterations returned: converged (the distance in Stop.distance); an inner solve's limit or
@@ -342,7 +340,7 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
     n = p.size
     work = np.empty(n)
     empty = np.empty(0)
-    start_objective = _regularizer(w, p, p0, work)
+    start_objective = regularizer_value(w, p, p0, work)
     x, current = p.copy(), True  # values: dc/dp at x while current
     lam = np.empty(0)
     for _ in range(NEWTON_STEPS):
@@ -392,7 +390,7 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
                                          x, lower, upper, NEAR)
             seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
             if distance <= kkt_tol:
-                if _regularizer(w, x, p0, work) <= start_objective * (1.0 + 1e-9) + 1e-15:
+                if regularizer_value(w, x, p0, work) <= start_objective * (1.0 + 1e-9) + 1e-15:
                     return True, x, c_trial, f_trial, values, distance
                 return False, p, empty, empty, empty, np.inf
     return False, p, empty, empty, empty, np.inf
@@ -442,12 +440,3 @@ def _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, co
     for k in range(rows.size):
         keep[k] = free[rows[k]] and free[columns[k]]
     return band_factors(dgbtrf, indptr, indices, values, w, free, position, rows[keep], columns[keep], entries[keep])
-
-
-@numba.njit(cache=True)
-def _regularizer(w, p, p0, work):  # pragma: no cover - compiled
-    """R(p) = 1/2 sum w (p - p0)^2 as Problem.objective sums it (numpy's pairwise sum)."""
-    for j in range(p.size):
-        d = p[j] - p0[j]
-        work[j] = w[j] * d * d
-    return 0.5 * pairwise_sum(work)
