@@ -53,7 +53,15 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     tightens omega, by as many factors of 10 as it takes to fall below the current pi (one factor
     per outer iteration repeated the same test at the same p: 10.9 -> 6.4 outer iterations per
     groom strand, the same p): a multiplier update there adds mu c to lam without moving p, and the
-    large multipliers it builds make Gauss-Newton (which omits lam^T c'') crawl.
+    large multipliers it builds make Gauss-Newton (which omits lam^T c'') crawl. While no
+    Gauss-Newton step has moved p at all (from p0, or from p0 raised onto a stabilization's floors),
+    the same holds below gradient_tol: the SQP step is tried (taken if it halves |c|_inf, as below)
+    and omega drops to a tenth of pi, so that the next inner solve steps. From p0 pi can meet
+    gradient_tol where the Gauss-Newton step is far from small (the soft modes of a strand held at
+    both ends), and the multiplier update lam = mu c that followed aims the next inner solve at
+    c = -c(p0): a 2000-vertex strand with a pinned tip went from there into stiffening it never
+    left (max_iterations at 90 times Ipopt's R). The SQP step first keeps the optima the first
+    update reached where that worked (benchmarks/RESULTS.md, 2026-12-05, twenty-fifth session).
 Scale: a rest-length entry moves c about 1e7 times more than a stiffness multiplier (the strain that
     holds gravity is ~1e-8), so gradients are compared in the scaled projected gradient
         pi(p, g) = ||P(p - g / h) - p||_inf,   h_j = w_j + ||J_{:,j}||^2,
@@ -74,7 +82,11 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian_entries; the least-squares multipliers
     at the start, then each step's own; one band LU each, a second-order correction back to c = 0)
     are tried (counted as ``newton_sqp``); their
-    point is taken if it passes the convergence test without raising R (_newton_sqp). The same is
+    point is taken if it passes the convergence test without raising R above its start's plus the
+    first-order cost of reaching c = 0 from there (_newton_sqp). A KKT point that raised R is kept
+    all the same (the one with the least R, _newton_attempt), and it is the answer if the loop then
+    ends without converging (a strand with a tight curvature budget crawled to max_outer above
+    Newton's point in R). The same is
     tried where the constraint stalls near feasibility (|c|_inf <= NEWTON_NEAR) and the SQP step
     below fails: on strands of 1000 and more vertices that step (diagonal W) is useless, and the
     larger mu that followed made Gauss-Newton crawl along the soft modes at |c|_inf ~1e-8, within
@@ -82,7 +94,9 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     there, same optima to 4e-12 in R). At most NEWTON_ATTEMPTS per solve. (Tried sooner, Newton ends
     at other KKT points: from the linear start with R up to 2e-4 higher than Ipopt's; from
     |c|_inf = 6e-4 on a strand resting on a head, 1.2e-5 higher than where Gauss-Newton goes.
-    Gauss-Newton on L brings p into the right basin first.) An attempt whose full steps fail is
+    Gauss-Newton on L brings p into the right basin first.) NEWTON_STEPS = 30: the halved steps of
+    a 2000-vertex strand with a pinned tip took 21 to converge, where 12 ended each attempt short
+    and the solve at max_iterations. An attempt whose full steps fail is
     repeated at once with each step halved until the corrected point keeps |c|_inf within
     NEWTON_GROWTH of where the step started (_newton_trial): the full step can be far off where
     the reduced Hessian is indefinite; on horizontal(n=400, tip="pinned") it left |c|_inf 1.5e3,
@@ -145,7 +159,7 @@ from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, 
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
 from .outer_loop import (MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS, NEWTON_NEAR,
-                         NEWTON_STEPS, SQP_DECREASE)
+                         NEWTON_STEPS, SQP_DECREASE, feasibility_cost)
 from .confirmed_start import confirmed_start
 from .statics_start import square_rest_system, statics_start, unbalanceable
 
@@ -218,8 +232,16 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     # the start, its KKT distance and its Result's stability (whose seconds make_result's time
     # leaves out) from one compiled call (solvers.confirmed_start)
     confirmed, measured = None, 0.0
+    kept = None  # Newton-SQP's KKT point that raised R, (p, c, distance): the answer if the loop ends short
 
     def finish(status, message):
+        if kept is not None and status != "converged":  # module docstring, Newton-SQP
+            violation = float(np.abs(kept[1]).max(initial=0.0))
+            history.append(violation)
+            message = (f"{converged_message(violation, kept[2], tol, kkt_tol, counts['outer'], counts['gauss_newton'])}"
+                       f" (at Newton-SQP's KKT point: the augmented Lagrangian found none with less R; {status})")
+            return make_result(problem, kept[0], "asc", "converged", message, counts,
+                               time.perf_counter() - clock - measured, history)
         return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock - measured,
                            history)
 
@@ -278,11 +300,12 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             stop = outer_loop.outer_iterations(
                 problem, model, p, c, J, scale, lam, at_lower, at_upper, mu, omega, target, previous_violation,
                 feasible_rounds, attempts, nearby, tol, kkt_tol, gradient_tol, max_outer, max_iterations,
-                clock + max_seconds, mu0, mu_growth, qp_rtol, preconditioner, counts, history)
+                clock + max_seconds, mu0, mu_growth, qp_rtol, preconditioner, counts, history, kept)
             (p, c, J, scale, lam, at_lower, at_upper, mu, omega, target, previous_violation, feasible_rounds,
              attempts, nearby) = (stop.p, stop.c, stop.J, stop.scale, stop.lam, stop.at_lower, stop.at_upper, stop.mu,
                                   stop.omega, stop.target, stop.previous_violation, stop.feasible_rounds,
                                   stop.attempts, stop.nearby)
+            kept = stop.kept
             violation, distance, converged, stalls = stop.violation, stop.distance, stop.converged, stop.stalls
             event = stop.event
             if event == outer_loop.OUT_OF_OUTER:
@@ -306,14 +329,22 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
 
             # ---- outer: multipliers, penalty, convergence ----
             violation = float(np.abs(c).max(initial=0.0))
-            if counts["gauss_newton"] == steps_before and violation > tol and omega > target:
+            unmoved = not counts["gauss_newton"] and 0.1 * optimality < omega
+            if counts["gauss_newton"] == steps_before and violation > tol and (omega > target or unmoved):
                 # the inner target was met without a step (the loose first one, from p0): a multiplier
                 # update there only adds mu c to lam, which grew |lam| to ~1e3 in four such rounds
                 # before the first step and made Gauss-Newton crawl; tighten the target instead, at once
-                # as far as the next inner solves would stop without a step again (same p, lam and mu)
-                omega = max(target, 0.1 * omega)
-                while omega > target and optimality <= omega:
+                # as far as the next inner solves would stop without a step again (same p, lam and mu).
+                # While no Gauss-Newton step has moved p, below gradient_tol too (module docstring, Start)
+                if omega > target:
                     omega = max(target, 0.1 * omega)
+                    while omega > target and optimality <= omega:
+                        omega = max(target, 0.1 * omega)
+                else:
+                    sqp = _sqp_step(problem, model, p, c, J, SQP_DECREASE * violation, tol)
+                    if sqp is not None:
+                        p, c, J, scale, lam, nearby = _taken(problem, model, sqp, counts, history)
+                    omega = 0.1 * optimality
                 continue
             lam = lam + mu * c
             regularizer_gradient = model.w * (p - model.p0)
@@ -341,11 +372,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
             if stalls:  # before growing mu, try the constrained step (SQP)
                 sqp = _sqp_step(problem, model, p, c, J, SQP_DECREASE * violation, tol)
                 if sqp is not None:
-                    counts["sqp"] += 1
-                    p, c, lam, nearby = sqp
-                    J = problem.strand_jacobian(p)
-                    scale = gradient_scale(model.w, J)
-                    history.append(float(np.abs(c).max(initial=0.0)))
+                    p, c, J, scale, lam, nearby = _taken(problem, model, sqp, counts, history)
                     previous_violation = violation
                     continue
         # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it (module
@@ -353,8 +380,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         if (event is None and not converged and attempts < NEWTON_ATTEMPTS
                 and (feasible_rounds >= NEWTON_AFTER or (stalls and violation <= NEWTON_NEAR))):
             attempts, feasible_rounds = attempts + 1, 0
-            newton = (_newton_sqp(problem, model, p, counts, tol, kkt_tol)
-                      or _newton_sqp(problem, model, p, counts, tol, kkt_tol, NEWTON_HALVINGS))
+            newton, kept = _newton_attempt(problem, model, p, counts, tol, kkt_tol, kept)
             if newton is not None:
                 p, c, distance = newton
                 violation = float(np.abs(c).max(initial=0.0))
@@ -523,9 +549,13 @@ def _corrected_trial(hessian, state: InnerState, J: StrandJacobian, p, step, c, 
 
 
 def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float, halvings: int = 0):
-    """(p, c, KKT distance) after at most NEWTON_STEPS exact-Hessian SQP steps from the feasible or
-    nearly feasible p (module docstring, Newton-SQP), or None unless they end at a point with
-    |c|_inf <= tol, KKT distance <= kkt_tol and R no larger than at p (plus rounding).
+    """(p, c, KKT distance, raised) after at most NEWTON_STEPS exact-Hessian SQP steps from the
+    feasible or nearly feasible p (module docstring, Newton-SQP), or None unless they end at a point
+    with |c|_inf <= tol and KKT distance <= kkt_tol. raised: R there is above R(p) plus rounding plus
+    max(0, lam^T c(p)), the first-order change of R from p to c = 0 with p's least-squares
+    multipliers (from |c|_inf = 1e-6 on a strand with a tight curvature budget, Newton's feasible
+    point 3e-8 above R(p) was rejected without that allowance, and Gauss-Newton crawled to
+    max_iterations above it).
 
     Each step solves [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w) +
     sum lam_r c_r''(p) on the working set F of contract.optimality (the variables farther than 1e-6
@@ -552,6 +582,7 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
             lam = least_squares_multipliers(gradient, J, gradient_scale(model.w, J), x, lower, upper)
             if not np.all(np.isfinite(lam)):
                 return None
+            start_objective += feasibility_cost(lam, c)
         curvature = problem.constraint_hessian_entries(x, lam)
         factor = SaddleFactor(J, model.w, free, curvature)
         if factor.singular:  # too few free directions (as in kkt_optimality): free those near a bound
@@ -570,10 +601,22 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
         if np.abs(c_trial).max(initial=0.0) <= tol:
             distance = kkt_optimality(problem, x)
             if distance <= kkt_tol:
-                if problem.objective(x) <= start_objective * (1.0 + 1e-9) + 1e-15:
-                    return x, c_trial, distance
-                return None
+                return x, c_trial, distance, not problem.objective(x) <= start_objective * (1.0 + 1e-9) + 1e-15
     return None
+
+
+def _newton_attempt(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float, kept):
+    """(point, kept): an attempt of Newton-SQP from p (module docstring), its full steps and then, if
+    they fail, its halved ones; point = (p, c, KKT distance) where one ends at a KKT point without
+    raising R, else None. kept: the KKT point with the least R that raised it, of this attempt and
+    the earlier ``kept``."""
+    for halvings in (0, NEWTON_HALVINGS):
+        newton = _newton_sqp(problem, model, p, counts, tol, kkt_tol, halvings)
+        if newton is not None and not newton[3]:
+            return newton[:3], kept
+        if newton is not None and (kept is None or problem.objective(newton[0]) < problem.objective(kept[0])):
+            kept = newton[:3]
+    return None, kept
 
 
 def _newton_trial(problem: Problem, w, J, x, step, c, free, tol: float, halvings: int):
@@ -643,6 +686,16 @@ def _sqp_step(problem: Problem, model: _Model, p, c, J, bound: float, tol: float
     if not np.abs(c_trial).max(initial=0.0) <= bound:  # also rejects NaN
         return None
     return trial, c_trial, lam, factor
+
+
+def _taken(problem: Problem, model: _Model, sqp: tuple, counts: dict, history: list) -> tuple:
+    """(p, c, dc/dp, gradient scale, lam, factorization) after the SQP step ``sqp`` (_sqp_step's
+    answer), counted and recorded."""
+    p, c, lam, nearby = sqp
+    counts["sqp"] += 1
+    history.append(float(np.abs(c).max(initial=0.0)))
+    J = problem.strand_jacobian(p)
+    return p, c, J, gradient_scale(model.w, J), lam, nearby
 
 
 def _on_previous_bounds(at_lower, at_upper, d_lower, d_upper) -> np.ndarray:

@@ -6,8 +6,9 @@ infeasibility test: each inner solve (gauss_newton's compiled loop, called direc
 multiplier update lam <- lam + mu c and its least-squares alternative at a feasible p
 (linalg.normal's compiled semi-normal equations), the convergence test and its KKT confirmation
 (contract.optimality.nearby_band_kkt_distance, refining the last SQP step's band LU where its
-free set is the working set), the SQP step where the constraint stalls (a band LU, its
-second-order correction with the same factors; alm._sqp_step), Newton-SQP with the constraints'
+free set is the working set), the SQP step where the constraint stalls or no Gauss-Newton step
+has moved p yet (a band LU, its second-order correction with the same factors; alm._sqp_step,
+alm "Start"), Newton-SQP with the constraints'
 curvature (formulation.at_rest.constraint_hessian_entries; alm._newton_sqp and _newton_trial),
 the penalty's growth and the inner target's tightening. The Python loop in alm does the same in
 the same order, and the two give the same p bit for bit (the same kernels on the same inputs;
@@ -58,7 +59,7 @@ MIN_TARGET = 1e-14  # floor of the inner target when the KKT distance keeps disa
 NEWTON_NEAR = 1e-4  # |c|_inf at or below which a stalled constraint whose SQP step fails gets Newton-SQP
 NEWTON_ATTEMPTS = 3  # attempts per solve
 NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row at a feasible p
-NEWTON_STEPS = 12  # exact-Hessian SQP steps per attempt (alm module docstring, Newton-SQP)
+NEWTON_STEPS = 30  # exact-Hessian SQP steps per attempt (alm module docstring, Newton-SQP)
 NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
 NEWTON_HALVINGS = 8  # ... at most this many times (alm._newton_trial)
 NEAR = 1e-6  # contract.optimality.working_set's default: the free set of the SQP step and the KKT distance
@@ -89,6 +90,7 @@ class Stop(NamedTuple):
     converged: bool
     stalls: bool
     nearby: tuple | None
+    kept: tuple | None
 
 
 def available(problem: Problem) -> bool:
@@ -105,23 +107,24 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
                      target: float, previous_violation: float, feasible_rounds: int, attempts: int, nearby,
                      tol: float, kkt_tol: float, gradient_tol: float, max_outer: int, max_iterations: int,
                      deadline: float, mu0: float, mu_growth: float, qp_rtol: float, preconditioner: str,
-                     counts: dict, history: list) -> Stop:
+                     counts: dict, history: list, kept) -> Stop:
     """Run solve_alm's outer iterations from its variables (module docstring) until an event;
     counts and history are advanced as the Python loop advances them. deadline: the
-    time.perf_counter() value of max_seconds."""
+    time.perf_counter() value of max_seconds. kept: Newton-SQP's KKT point that raised R, (p, c,
+    KKT distance) or None (alm._newton_attempt), in and out (Stop.kept)."""
     forces_args, jacobian_args, free, row_scale, structure = problem.at_rest_kernels
     lower, upper = problem.layout.lower, problem.layout.upper
     position = band_order(structure[0], structure[1], free.size)
     border = model.border
     inner_counts = np.array([counts[name] for name in gauss_newton.COUNTED], dtype=np.int64)
     outer_counts = np.array([counts[name] for name in OUTER_COUNTED], dtype=np.int64)
-    real = np.array([mu, omega, target, previous_violation, np.nan, np.nan])
+    real = np.array([mu, omega, target, previous_violation, np.nan, np.nan, np.inf if kept is None else kept[2]])
     integer = np.array([feasible_rounds, attempts, 0, 0, 0, 0, 0, 0], dtype=np.int64)
     seconds = np.zeros(2)
     # one per Gauss-Newton step, at most one per SQP step or Newton-SQP attempt
     steps = np.empty(max_iterations + 2 * max_outer + 2)
     clock, clock_id = timing.CLOCK
-    event, p, c, f, values, scale, lam, nearby = _outer(
+    event, p, c, f, values, scale, lam, nearby, kept_p, kept_c = _outer(
         forces_args, jacobian_args, problem.curvature_kernels, gauss_newton.curvature_applies(problem, border), free,
         row_scale, structure, position, lapack.DGBTRF, lapack.DGBTRS, clock, clock_id, model.w, model.p0, lower, upper, np.ascontiguousarray(p, dtype=float),
         np.ascontiguousarray(c, dtype=float), J.csc()[2], np.ascontiguousarray(scale, dtype=float),
@@ -129,7 +132,8 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
         float(tol), float(kkt_tol), float(gradient_tol), int(max_outer), int(max_iterations),
         float(deadline - timing.clock_offset()), float(mu0), float(mu_growth), float(qp_rtol),
         mprgp.PRECONDITIONERS[preconditioner], border, mprgp.ACTIVE_SET_STEPS if border == 0 else 0, mprgp.WALKING,
-        real, integer, inner_counts, outer_counts, seconds, steps)
+        real, integer, inner_counts, outer_counts, seconds, steps, np.empty(0) if kept is None else kept[0],
+        np.empty(0) if kept is None else kept[1])
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     for name, value in zip(gauss_newton.COUNTED, inner_counts.tolist()):
@@ -143,23 +147,24 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
         J = problem.strand_jacobian(p)
     return Stop(event, reason, mprgp.STATUS[qp_status], p, c, J, scale, lam, at_lower, at_upper, *real[:4].tolist(),
                 feasible_rounds, attempts, float(real[4]), float(real[5]), bool(converged), bool(stalls),
-                nearby if nearby[0].size else None)
+                nearby if nearby[0].size else None, (kept_p, kept_c, float(real[6])) if kept_p.size else None)
 
 
 @numba.njit(cache=True)
 def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, structure, position, dgbtrf, dgbtrs,
            clock, clock_id, w, p0, lower, upper, p, c, values, scale, lam, at_lower, at_upper, nearby, tol, kkt_tol,
            gradient_tol, max_outer, max_iterations, deadline, mu0, mu_growth, qp_rtol, precond, border,
-           active_set_steps, walking, real, integer, counts, outer_counts, seconds,
-           history):  # pragma: no cover - compiled
+           active_set_steps, walking, real, integer, counts, outer_counts, seconds, history, kept_p,
+           kept_c):  # pragma: no cover - compiled
     """The loop of ``outer_iterations`` (solve_alm's, line by line). real: [mu, omega, target,
-    previous violation, violation, distance] and integer: [feasible rounds, Newton attempts,
+    previous violation, violation, distance, kept's KKT distance] and integer: [feasible rounds, Newton attempts,
     converged, stalls, inner reason, QP status, history entries, moved] are read and written in
     place; counts in gauss_newton.COUNTED order, outer_counts in OUTER_COUNTED order; curvature_args:
     Problem.curvature_kernels (Newton-SQP's constraint curvature, and the inner Hessian's where
     ``curved``: gauss_newton.curvature_applies); seconds
-    [model, linear algebra]. Returns (event, p, c, f(p) or empty if p did not move, dc/dp values,
-    scale, lam, nearby)."""
+    [model, linear algebra]; kept_p, kept_c: Newton-SQP's KKT point that raised R (empty if none;
+    alm._newton_attempt). Returns (event, p, c, f(p) or empty if p did not move, dc/dp values,
+    scale, lam, nearby, kept_p, kept_c)."""
     indptr, indices = structure[0], structure[1]
     lam = lam.copy()  # updated in place below; the caller's stays as it was
     mu, omega, target, previous_violation = real[0], real[1], real[2], real[3]
@@ -192,10 +197,22 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
             break
         # ---- outer: multipliers, penalty, convergence ----
         violation = largest_magnitude(c)
-        if counts[0] == steps_before and violation > tol and omega > target:
-            omega = max(target, 0.1 * omega)  # alm: a multiplier update here would not move p
-            while omega > target and optimality <= omega:
+        unmoved = counts[0] == 0 and 0.1 * optimality < omega
+        if counts[0] == steps_before and violation > tol and (omega > target or unmoved):
+            if omega > target:  # alm: a multiplier update here would not move p
                 omega = max(target, 0.1 * omega)
+                while omega > target and optimality <= omega:
+                    omega = max(target, 0.1 * omega)
+            else:  # alm: p has not moved by a Gauss-Newton step: the SQP step, then a target that steps
+                taken_step, p_sqp, c_sqp, f_sqp, lam_sqp, factors = _sqp_step(
+                    forces_args, jacobian_args, free, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w,
+                    p0, lower, upper, p, c, SQP_DECREASE * violation, tol, clock, clock_id, seconds)
+                if taken_step:
+                    p, c, f, lam, nearby, moved_any = p_sqp, c_sqp, f_sqp, lam_sqp, factors, True
+                    values, scale = _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds,
+                                           history, recorded)
+                    recorded += 1
+                omega = 0.1 * optimality
             continue
         for r in range(rows):
             lam[r] = lam[r] + mu * c[r]
@@ -227,13 +244,9 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
                 forces_args, jacobian_args, free, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w,
                 p0, lower, upper, p, c, SQP_DECREASE * violation, tol, clock, clock_id, seconds)
             if taken_step:
-                outer_counts[1] += 1
                 p, c, f, lam, nearby, moved_any = p_sqp, c_sqp, f_sqp, lam_sqp, factors, True
-                started = timing.clock_seconds(clock, clock_id, buffer)
-                values = at_rest.jacobian_values(p, *jacobian_args)
-                seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
-                scale = w + csc_column_norms(indptr, values) + 1e-300  # contract.optimality.gradient_scale
-                history[recorded] = largest_magnitude(c)
+                values, scale = _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds, history,
+                                       recorded)
                 recorded += 1
                 previous_violation = violation
                 continue
@@ -243,10 +256,15 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
             attempts, feasible_rounds = attempts + 1, 0
             newton = (forces_args, jacobian_args, curvature_args, free, row_scale, indptr, indices, position, dgbtrf,
                       dgbtrs, w, p0, lower, upper, p, c, values, tol, kkt_tol, clock, clock_id, outer_counts, seconds)
-            # np.int64: literal ints would compile _newton_sqp once for each
-            found, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(0))
-            if not found:  # again, each step halved while it leaves |c|_inf far above its start
-                found, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(NEWTON_HALVINGS))
+            # np.int64: literal ints would compile _newton_sqp once for each; alm._newton_attempt
+            found, raised, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(0))
+            if found and raised:
+                kept_p, kept_c = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, real)
+            if not found or raised:  # again, each step halved while it leaves |c|_inf far above its start
+                found, raised, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(NEWTON_HALVINGS))
+                if found and raised:
+                    kept_p, kept_c = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, real)
+                    found = False
             if found:
                 p, c, f, values, distance, moved_any = x, c_x, f_x, values_x, distance_x, True
                 violation = largest_magnitude(c)
@@ -266,7 +284,21 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
     real[0], real[1], real[2], real[3], real[4], real[5] = mu, omega, target, previous_violation, violation, distance
     integer[0], integer[1], integer[2], integer[3] = feasible_rounds, attempts, converged, stalls
     integer[6], integer[7] = recorded, moved_any
-    return event, p, c, f, values, scale, lam, nearby
+    return event, p, c, f, values, scale, lam, nearby, kept_p, kept_c
+
+
+@numba.njit(cache=True)
+def _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds, history,
+           recorded):  # pragma: no cover - compiled
+    """alm._taken: (dc/dp values, gradient scale) at the SQP step's point p, the step counted and its
+    |c|_inf recorded at history[recorded]."""
+    buffer = np.zeros(2, dtype=np.int64)
+    outer_counts[1] += 1
+    history[recorded] = largest_magnitude(c)
+    started = timing.clock_seconds(clock, clock_id, buffer)
+    values = at_rest.jacobian_values(p, *jacobian_args)
+    seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
+    return values, w + csc_column_norms(indptr, values) + 1e-300  # contract.optimality.gradient_scale
 
 
 @numba.njit(cache=True)
@@ -332,10 +364,10 @@ def _sqp_step(forces_args, jacobian_args, free_index, row_scale, indptr, indices
 def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scale, indptr, indices, position, dgbtrf,
                 dgbtrs, w, p0, lower, upper, p, c, values, tol, kkt_tol, clock, clock_id, outer_counts, seconds,
                 halvings):  # pragma: no cover - compiled
-    """alm._newton_sqp: (found, p, c, f, dc/dp values, KKT distance) after at most NEWTON_STEPS
-    exact-Hessian SQP steps from p (c and dc/dp ``values`` there); found only where they end at
-    |c|_inf <= tol, a KKT distance <= kkt_tol and R no larger than at p (plus rounding). Counts its
-    steps in outer_counts[3]."""
+    """alm._newton_sqp: (found, raised, p, c, f, dc/dp values, KKT distance) after at most
+    NEWTON_STEPS exact-Hessian SQP steps from p (c and dc/dp ``values`` there); found where they end
+    at |c|_inf <= tol and a KKT distance <= kkt_tol, raised where R is above alm's bound there.
+    Counts its steps in outer_counts[3]."""
     buffer = np.zeros(2, dtype=np.int64)
     n = p.size
     work = np.empty(n)
@@ -357,7 +389,8 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
             scale = w + csc_column_norms(indptr, values) + 1e-300
             lam = _least_squares_multipliers(indptr, indices, values, c.size, gradient, scale, x, lower, upper)
             if not np.all(np.isfinite(lam)):
-                return False, p, empty, empty, empty, np.inf
+                return False, False, p, empty, empty, empty, np.inf
+            start_objective += feasibility_cost(lam, c)
         started = timing.clock_seconds(clock, clock_id, buffer)
         rows, columns, entries = at_rest.constraint_hessian_entries(x, lam, *curvature_args)
         now = timing.clock_seconds(clock, clock_id, buffer)
@@ -369,17 +402,17 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
             factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
         if factors[0].size == 0:
             seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
-            return False, p, empty, empty, empty, np.inf
+            return False, False, p, empty, empty, empty, np.inf
         step, lam = solve_band_factors(dgbtrs, factors, gradient, c)
         seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
         if not np.all(np.isfinite(step)):
-            return False, p, empty, empty, empty, np.inf
+            return False, False, p, empty, empty, empty, np.inf
         outer_counts[3] += 1
         usable, trial, c_trial, f_trial = _newton_trial(forces_args, free_index, row_scale, indptr, indices, values,
                                                         position, dgbtrf, dgbtrs, w, lower, upper, x, step, c, free,
                                                         tol, halvings, clock, clock_id, seconds)
         if not usable or not np.all(np.isfinite(c_trial)):
-            return False, p, empty, empty, empty, np.inf
+            return False, False, p, empty, empty, empty, np.inf
         x, c, current = trial, c_trial, False
         if largest_magnitude(c_trial) <= tol:
             started = timing.clock_seconds(clock, clock_id, buffer)
@@ -390,10 +423,9 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
                                          x, lower, upper, NEAR)
             seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
             if distance <= kkt_tol:
-                if regularizer_value(w, x, p0, work) <= start_objective * (1.0 + 1e-9) + 1e-15:
-                    return True, x, c_trial, f_trial, values, distance
-                return False, p, empty, empty, empty, np.inf
-    return False, p, empty, empty, empty, np.inf
+                raised = not regularizer_value(w, x, p0, work) <= start_objective * (1.0 + 1e-9) + 1e-15
+                return True, raised, x, c_trial, f_trial, values, distance
+    return False, False, p, empty, empty, empty, np.inf
 
 
 @numba.njit(cache=True)
@@ -429,6 +461,27 @@ def _newton_trial(forces_args, free_index, row_scale, indptr, indices, values, p
             break
         fraction *= 0.5
     return True, trial, c_trial, f_trial
+
+
+@numba.njit(cache=True)
+def _kept(w, p0, x, c, distance, kept_p, kept_c, real):  # pragma: no cover - compiled
+    """alm._newton_attempt's choice: (kept_p, kept_c), Newton-SQP's KKT point x (its c, its KKT
+    distance into real[6]) where none was kept or x has the lesser R."""
+    work = np.empty(x.size)
+    if kept_p.size and not regularizer_value(w, x, p0, work) < regularizer_value(w, kept_p, p0, work):
+        return kept_p, kept_c
+    real[6] = distance
+    return x, c
+
+
+@numba.njit(cache=True)
+def feasibility_cost(lam, c):  # pragma: no cover - compiled
+    """max(0, lam^T c): what reaching c = 0 from a point with residual c and multipliers lam adds to
+    R, to first order (the allowance of Newton-SQP's test against R at its start; alm._newton_sqp)."""
+    total = 0.0
+    for r in range(c.size):
+        total += lam[r] * c[r]
+    return max(0.0, total)
 
 
 @numba.njit(cache=True)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import sagfree
+from sagfree.contract.optimality import kkt_optimality
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import timing
 from sagfree.linalg.pairwise import pairwise_sum
@@ -88,7 +89,7 @@ def test_the_compiled_loop_counts_its_model_and_linear_algebra_time():
 
     def recorded(*args):
         out = outer(*args)
-        calls.append(args[-2].copy())  # the loop's [model, linear algebra] seconds
+        calls.append(args[-4].copy())  # the loop's [model, linear algebra] seconds
         return out
 
     mark = timing.snapshot()
@@ -132,6 +133,23 @@ def test_a_crawl_along_the_bilinear_valley_ends_with_the_corrected_full_step_in_
     compiled, python = solved_both_ways(monkeypatch, problem, start="linear")
     assert compiled.status == "converged" and compiled.iterations["corrected"] > 0
     assert compiled.iterations["gauss_newton"] <= 6
+    assert np.array_equal(compiled.p, python.p) and compiled.iterations == python.iterations
+
+
+@pytest.mark.parametrize("seed, index, kept", [(2, 0, True), (0, 2, False)])
+def test_newton_sqps_kkt_points_are_answers_in_both_loops(monkeypatch, seed, index, kept):
+    """400-vertex groom strands with their tips pinned and curvature and twist budgets cut to 0.4
+    rad, which both ended max_iterations at a feasible point. From |c|_inf ~1e-6 Newton-SQP reached a
+    KKT point whose R was above its infeasible start: within the first-order cost of reaching c = 0
+    (outer_loop.feasibility_cost) it is taken at once; above it, it is kept, and it is the answer
+    where Gauss-Newton then crawls to max_outer above it (alm._newton_attempt). Both loops alike."""
+    strand = sagfree.scenes.groom(3, 400, seed=seed)[index].attached(tip="pinned")
+    problem = Problem(strand, bounds={"curvature_budget": 0.4, "twist_budget": 0.4})
+    compiled, python = solved_both_ways(monkeypatch, problem)
+    assert compiled.status == "converged", compiled.message
+    assert ("Newton-SQP's KKT point" in compiled.message) == kept
+    assert kept or compiled.iterations["gauss_newton"] <= 10
+    assert compiled.residual_inf <= 1e-8 and kkt_optimality(problem, compiled.p) <= 1e-5
     assert np.array_equal(compiled.p, python.p) and compiled.iterations == python.iterations
 
 

@@ -325,6 +325,18 @@ def test_the_constraints_curvature_finishes_a_strand_held_at_both_ends(monkeypat
     assert crawled.status == "max_iterations" and crawled.iterations["gauss_newton"] > 100
 
 
+def test_a_long_strand_with_a_pinned_tip_steps_before_its_first_multiplier_update():
+    """A groom strand of 2000 vertices with its tip pinned: at p0 the scaled gradient met the inner
+    target without a step, and the multiplier update lam = mu c that followed sent asc into
+    stiffening it never left (max_iterations at R 2.6e-5, where Ipopt reaches 2.87e-7). While no
+    Gauss-Newton step has moved p, the loop now steps first (alm module docstring, Start)."""
+    problem = sagfree.Problem(sagfree.scenes.groom(3, 2000, seed=0)[1].attached(tip="pinned"))
+    result = solve_alm(problem)
+    assert result.status == "converged", result.message
+    assert result.objective < 3e-7
+    assert kkt_optimality(problem, result.p) <= KKT_TOL
+
+
 @pytest.mark.parametrize("dense_column", [True, False])
 def test_least_squares_multipliers_minimize_the_scaled_lagrangian_gradient(dense_column, rng):
     """multipliers.least_squares_multipliers against dense least squares on a banded J, with a column that
