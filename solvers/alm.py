@@ -238,8 +238,8 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         if kept is not None and status != "converged":  # module docstring, Newton-SQP
             violation = float(np.abs(kept[1]).max(initial=0.0))
             history.append(violation)
-            message = (f"{converged_message(violation, kept[2], tol, kkt_tol, counts['outer'], counts['gauss_newton'])}"
-                       f" (at Newton-SQP's KKT point: the augmented Lagrangian found none with less R; {status})")
+            done = converged_message(violation, kept[2], tol, kkt_tol, counts["outer"], counts["gauss_newton"])
+            message = f"{done}; Newton-SQP's KKT point, kept: the augmented Lagrangian ended {status} above it"
             return make_result(problem, kept[0], "asc", "converged", message, counts,
                                time.perf_counter() - clock - measured, history)
         return make_result(problem, p, "asc", status, message, counts, time.perf_counter() - clock - measured,

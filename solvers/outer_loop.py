@@ -157,8 +157,8 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
            active_set_steps, walking, real, integer, counts, outer_counts, seconds, history, kept_p,
            kept_c):  # pragma: no cover - compiled
     """The loop of ``outer_iterations`` (solve_alm's, line by line). real: [mu, omega, target,
-    previous violation, violation, distance, kept's KKT distance] and integer: [feasible rounds, Newton attempts,
-    converged, stalls, inner reason, QP status, history entries, moved] are read and written in
+    previous violation, violation, distance, kept's KKT distance] and integer: [feasible rounds,
+    Newton attempts, converged, stalls, inner reason, QP status, history entries, moved] are read and written in
     place; counts in gauss_newton.COUNTED order, outer_counts in OUTER_COUNTED order; curvature_args:
     Problem.curvature_kernels (Newton-SQP's constraint curvature, and the inner Hessian's where
     ``curved``: gauss_newton.curvature_applies); seconds
@@ -245,8 +245,8 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
                 p0, lower, upper, p, c, SQP_DECREASE * violation, tol, clock, clock_id, seconds)
             if taken_step:
                 p, c, f, lam, nearby, moved_any = p_sqp, c_sqp, f_sqp, lam_sqp, factors, True
-                values, scale = _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds, history,
-                                       recorded)
+                values, scale = _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds,
+                                       history, recorded)
                 recorded += 1
                 previous_violation = violation
                 continue
