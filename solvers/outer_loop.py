@@ -204,14 +204,12 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
                 while omega > target and optimality <= omega:
                     omega = max(target, 0.1 * omega)
             else:  # alm: p has not moved by a Gauss-Newton step: the SQP step, then a target that steps
-                taken_step, p_sqp, c_sqp, f_sqp, lam_sqp, factors = _sqp_step(
-                    forces_args, jacobian_args, free, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w,
-                    p0, lower, upper, p, c, SQP_DECREASE * violation, tol, clock, clock_id, seconds)
-                if taken_step:
-                    p, c, f, lam, nearby, moved_any = p_sqp, c_sqp, f_sqp, lam_sqp, factors, True
-                    values, scale = _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds,
-                                           history, recorded)
-                    recorded += 1
+                taken, p, c, f, lam, nearby, values, scale = _tried_sqp_step(
+                    forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf, dgbtrs, w, p0,
+                    lower, upper, p, c, f, lam, nearby, values, scale, violation, tol, clock, clock_id, outer_counts,
+                    seconds, history, recorded)
+                if taken:
+                    moved_any, recorded = True, recorded + 1
                 omega = 0.1 * optimality
             continue
         for r in range(rows):
@@ -240,14 +238,12 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
         feasible_rounds = feasible_rounds + 1 if crawled else 0
         stalls = violation > tol and violation > 0.25 * previous_violation
         if stalls:  # before growing mu, try the constrained step (SQP)
-            taken_step, p_sqp, c_sqp, f_sqp, lam_sqp, factors = _sqp_step(
-                forces_args, jacobian_args, free, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w,
-                p0, lower, upper, p, c, SQP_DECREASE * violation, tol, clock, clock_id, seconds)
-            if taken_step:
-                p, c, f, lam, nearby, moved_any = p_sqp, c_sqp, f_sqp, lam_sqp, factors, True
-                values, scale = _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds,
-                                       history, recorded)
-                recorded += 1
+            taken, p, c, f, lam, nearby, values, scale = _tried_sqp_step(
+                forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf, dgbtrs, w, p0, lower,
+                upper, p, c, f, lam, nearby, values, scale, violation, tol, clock, clock_id, outer_counts, seconds,
+                history, recorded)
+            if taken:
+                moved_any, recorded = True, recorded + 1
                 previous_violation = violation
                 continue
         # Newton-SQP where Gauss-Newton crawls at a feasible p or the SQP step failed near it
@@ -288,17 +284,25 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
 
 
 @numba.njit(cache=True)
-def _taken(p, c, jacobian_args, w, indptr, clock, clock_id, outer_counts, seconds, history,
-           recorded):  # pragma: no cover - compiled
-    """alm._taken: (dc/dp values, gradient scale) at the SQP step's point p, the step counted and its
-    |c|_inf recorded at history[recorded]."""
+def _tried_sqp_step(forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf, dgbtrs, w, p0,
+                    lower, upper, p, c, f, lam, nearby, values, scale, violation, tol, clock, clock_id, outer_counts,
+                    seconds, history, recorded):  # pragma: no cover - compiled
+    """The SQP step from p (_sqp_step, bound SQP_DECREASE |c|_inf) and, where it is taken, alm._taken:
+    (taken, p, c, f, lam, nearby, dc/dp values, gradient scale) at its point, the step counted and
+    its |c|_inf recorded at history[recorded]; the inputs as they were where it is not."""
     buffer = np.zeros(2, dtype=np.int64)
+    taken, p_sqp, c_sqp, f_sqp, lam_sqp, factors = _sqp_step(
+        forces_args, jacobian_args, free, row_scale, indptr, indices, values, position, dgbtrf, dgbtrs, w, p0, lower,
+        upper, p, c, SQP_DECREASE * violation, tol, clock, clock_id, seconds)
+    if not taken:
+        return False, p, c, f, lam, nearby, values, scale
     outer_counts[1] += 1
-    history[recorded] = largest_magnitude(c)
+    history[recorded] = largest_magnitude(c_sqp)
     started = timing.clock_seconds(clock, clock_id, buffer)
-    values = at_rest.jacobian_values(p, *jacobian_args)
+    values_sqp = at_rest.jacobian_values(p_sqp, *jacobian_args)
     seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
-    return values, w + csc_column_norms(indptr, values) + 1e-300  # contract.optimality.gradient_scale
+    scale_sqp = w + csc_column_norms(indptr, values_sqp) + 1e-300  # contract.optimality.gradient_scale
+    return True, p_sqp, c_sqp, f_sqp, lam_sqp, factors, values_sqp, scale_sqp
 
 
 @numba.njit(cache=True)
