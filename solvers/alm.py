@@ -59,9 +59,9 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     and omega drops to a tenth of pi, so that the next inner solve steps. From p0 pi can meet
     gradient_tol where the Gauss-Newton step is far from small (the soft modes of a strand held at
     both ends), and the multiplier update lam = mu c that followed aims the next inner solve at
-    c = -c(p0): a 2000-vertex strand with a pinned tip went from there into stiffening it never
-    left (max_iterations at 90 times Ipopt's R). The SQP step first keeps the optima the first
-    update reached where that worked (benchmarks/RESULTS.md, 2026-12-05, twenty-fifth session).
+    c = -c(p0), into stiffening long strands held at both ends never left. The SQP step first keeps
+    the optima that update reached where it worked (benchmarks/RESULTS.md, 2026-12-05, twenty-fifth
+    session).
 Scale: a rest-length entry moves c about 1e7 times more than a stiffness multiplier (the strain that
     holds gravity is ~1e-8), so gradients are compared in the scaled projected gradient
         pi(p, g) = ||P(p - g / h) - p||_inf,   h_j = w_j + ||J_{:,j}||^2,
@@ -95,8 +95,7 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     at other KKT points: from the linear start with R up to 2e-4 higher than Ipopt's; from
     |c|_inf = 6e-4 on a strand resting on a head, 1.2e-5 higher than where Gauss-Newton goes.
     Gauss-Newton on L brings p into the right basin first.) NEWTON_STEPS = 30: the halved steps of
-    a 2000-vertex strand with a pinned tip took 21 to converge, where 12 ended each attempt short
-    and the solve at max_iterations. An attempt whose full steps fail is
+    a long strand with a pinned tip converge in about 20. An attempt whose full steps fail is
     repeated at once with each step halved until the corrected point keeps |c|_inf within
     NEWTON_GROWTH of where the step started (_newton_trial): the full step can be far off where
     the reduced Hessian is indefinite; on horizontal(n=400, tip="pinned") it left |c|_inf 1.5e3,
@@ -553,9 +552,8 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
     feasible or nearly feasible p (module docstring, Newton-SQP), or None unless they end at a point
     with |c|_inf <= tol and KKT distance <= kkt_tol. raised: R there is above R(p) plus rounding plus
     max(0, lam^T c(p)), the first-order change of R from p to c = 0 with p's least-squares
-    multipliers (from |c|_inf = 1e-6 on a strand with a tight curvature budget, Newton's feasible
-    point 3e-8 above R(p) was rejected without that allowance, and Gauss-Newton crawled to
-    max_iterations above it).
+    multipliers: from an infeasible p, reaching c = 0 may cost R, and without that allowance a
+    feasible point above R(p) was rejected where Gauss-Newton then crawled above it.
 
     Each step solves [[W_F, J_F^T], [J_F, 0]] [d_F; lam] = -[grad R_F; c] with W = diag(w) +
     sum lam_r c_r''(p) on the working set F of contract.optimality (the variables farther than 1e-6
@@ -801,8 +799,8 @@ def least_residual(problem: Problem, starts: list[np.ndarray], counts: dict, qp_
     with the weights of c. Its steps are counted as ``least_residual``. Their QPs stop at a relative
     projected gradient of max(qp_rtol, LEAST_RESIDUAL_QP_RTOL): a Levenberg-Marquardt step needs a
     descent direction, not the QP's optimum, and the point is only the least sag's start (or the
-    augmented Lagrangian's restart, whose own QPs are tight): at 1e-10 the phase took 4.6 times the
-    factorizations on a 2000-vertex long hair, for the same sag (benchmarks/RESULTS.md).
+    augmented Lagrangian's restart, whose own QPs are tight): tight QPs multiplied the phase's
+    factorizations several times over for the same sag (benchmarks/RESULTS.md).
     """
     qp_rtol = max(qp_rtol, LEAST_RESIDUAL_QP_RTOL)
     best, lowest = None, np.inf

@@ -88,8 +88,8 @@ def curved_hessian(band, rows, columns, values):  # pragma: no cover - compiled
 
     Why: on a strand held at both ends the internal forces are not fixed by statics, and along the
     feasible set the optimum trades through the curvature that Gauss-Newton omits: it crawled
-    there, and Newton-SQP's equality-constrained steps left the box (1000-vertex strands with a
-    pinned tip ended max_iterations). Far from feasibility (|c|_inf > CURVATURE_NEAR) lam + mu c
+    there, and Newton-SQP's equality-constrained steps left the box (long strands with a pinned
+    tip ended max_iterations). Far from feasibility (|c|_inf > CURVATURE_NEAR) lam + mu c
     is large and the curvature misleads; on bodies it doubled the work (benchmarks/RESULTS.md,
     2026-12-05)."""
     half, nb = band.shape[0] - 1, band.shape[1]

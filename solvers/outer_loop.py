@@ -31,13 +31,13 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from sagfree.contract.optimality import (band_kkt_distance, nearby_band_kkt_distance,
-                                         scaled_projected_gradient_kernel)
+from sagfree.contract.optimality import (band_kkt_distance, gradient_scale_kernel, nearby_band_kkt_distance,
+                                         scaled_projected_gradient_kernel, working_set_kernel)
 from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.band import dense_count
-from sagfree.linalg.compressed import csc_column_norms, csc_rmatvec
+from sagfree.linalg.compressed import csc_rmatvec
 from sagfree.linalg.normal import seminormal_kernel
 from sagfree.linalg.saddle import (band_factors, band_order, no_band_factors, plain_band_factors,
                                    solve_band_factors)
@@ -126,7 +126,8 @@ def outer_iterations(problem: Problem, model, p, c, J, scale, lam, at_lower, at_
     clock, clock_id = timing.CLOCK
     event, p, c, f, values, scale, lam, nearby, kept_p, kept_c = _outer(
         forces_args, jacobian_args, problem.curvature_kernels, gauss_newton.curvature_applies(problem, border), free,
-        row_scale, structure, position, lapack.DGBTRF, lapack.DGBTRS, clock, clock_id, model.w, model.p0, lower, upper, np.ascontiguousarray(p, dtype=float),
+        row_scale, structure, position, lapack.DGBTRF, lapack.DGBTRS, clock, clock_id, model.w, model.p0, lower, upper,
+        np.ascontiguousarray(p, dtype=float),
         np.ascontiguousarray(c, dtype=float), J.csc()[2], np.ascontiguousarray(scale, dtype=float),
         np.ascontiguousarray(lam, dtype=float), at_lower, at_upper, no_band_factors() if nearby is None else nearby,
         float(tol), float(kkt_tol), float(gradient_tol), int(max_outer), int(max_iterations),
@@ -168,7 +169,7 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
     indptr, indices = structure[0], structure[1]
     lam = lam.copy()  # updated in place below; the caller's stays as it was
     mu, omega, target, previous_violation = real[0], real[1], real[2], real[3]
-    feasible_rounds, attempts = integer[0], integer[1]
+    feasible_rounds, attempts, kept_distance = integer[0], integer[1], real[6]
     buffer = np.zeros(2, dtype=np.int64)
     steps = np.empty(INNER_STEPS + 1)
     rows = c.size
@@ -255,11 +256,11 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
             # np.int64: literal ints would compile _newton_sqp once for each; alm._newton_attempt
             found, raised, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(0))
             if found and raised:
-                kept_p, kept_c = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, real)
+                kept_p, kept_c, kept_distance = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, kept_distance)
             if not found or raised:  # again, each step halved while it leaves |c|_inf far above its start
                 found, raised, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(NEWTON_HALVINGS))
                 if found and raised:
-                    kept_p, kept_c = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, real)
+                    kept_p, kept_c, kept_distance = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, kept_distance)
                     found = False
             if found:
                 p, c, f, values, distance, moved_any = x, c_x, f_x, values_x, distance_x, True
@@ -278,6 +279,7 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
         previous_violation = violation
         omega = max(target, 0.1 * omega)
     real[0], real[1], real[2], real[3], real[4], real[5] = mu, omega, target, previous_violation, violation, distance
+    real[6] = kept_distance
     integer[0], integer[1], integer[2], integer[3] = feasible_rounds, attempts, converged, stalls
     integer[6], integer[7] = recorded, moved_any
     return event, p, c, f, values, scale, lam, nearby, kept_p, kept_c
@@ -301,8 +303,7 @@ def _tried_sqp_step(forces_args, jacobian_args, free, row_scale, indptr, indices
     started = timing.clock_seconds(clock, clock_id, buffer)
     values_sqp = at_rest.jacobian_values(p_sqp, *jacobian_args)
     seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
-    scale_sqp = w + csc_column_norms(indptr, values_sqp) + 1e-300  # contract.optimality.gradient_scale
-    return True, p_sqp, c_sqp, f_sqp, lam_sqp, factors, values_sqp, scale_sqp
+    return True, p_sqp, c_sqp, f_sqp, lam_sqp, factors, values_sqp, gradient_scale_kernel(w, indptr, values_sqp)
 
 
 @numba.njit(cache=True)
@@ -331,10 +332,7 @@ def _sqp_step(forces_args, jacobian_args, free_index, row_scale, indptr, indices
     where the saddle system is singular or the step leaves |c|_inf > bound."""
     buffer = np.zeros(2, dtype=np.int64)
     n = p.size
-    free = np.empty(n, dtype=np.bool_)
-    for j in range(n):  # contract.optimality.working_set
-        slack = NEAR * (upper[j] - lower[j])
-        free[j] = (p[j] - lower[j] > slack) and (upper[j] - p[j] > slack)
+    free = working_set_kernel(p, lower, upper, NEAR)
     empty = np.empty(0)
     started = timing.clock_seconds(clock, clock_id, buffer)
     factors = plain_band_factors(dgbtrf, indptr, indices, values, w, free, position)
@@ -385,13 +383,10 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
             values = at_rest.jacobian_values(x, *jacobian_args)
             seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - started
         gradient = w * (x - p0)
-        free = np.empty(n, dtype=np.bool_)
-        for j in range(n):  # contract.optimality.working_set
-            slack = NEAR * (upper[j] - lower[j])
-            free[j] = (x[j] - lower[j] > slack) and (upper[j] - x[j] > slack)
+        free = working_set_kernel(x, lower, upper, NEAR)
         if lam.size == 0:  # the first step's; each later one takes the previous step's
-            scale = w + csc_column_norms(indptr, values) + 1e-300
-            lam = _least_squares_multipliers(indptr, indices, values, c.size, gradient, scale, x, lower, upper)
+            lam = _least_squares_multipliers(indptr, indices, values, c.size, gradient,
+                                             gradient_scale_kernel(w, indptr, values), x, lower, upper)
             if not np.all(np.isfinite(lam)):
                 return False, False, p, empty, empty, empty, np.inf
             start_objective += feasibility_cost(lam, c)
@@ -468,14 +463,13 @@ def _newton_trial(forces_args, free_index, row_scale, indptr, indices, values, p
 
 
 @numba.njit(cache=True)
-def _kept(w, p0, x, c, distance, kept_p, kept_c, real):  # pragma: no cover - compiled
-    """alm._newton_attempt's choice: (kept_p, kept_c), Newton-SQP's KKT point x (its c, its KKT
-    distance into real[6]) where none was kept or x has the lesser R."""
+def _kept(w, p0, x, c, distance, kept_p, kept_c, kept_distance):  # pragma: no cover - compiled
+    """alm._newton_attempt's choice of (p, c, KKT distance): Newton-SQP's KKT point x where none was
+    kept (kept_p empty) or x has the lesser R, else the kept one."""
     work = np.empty(x.size)
     if kept_p.size and not regularizer_value(w, x, p0, work) < regularizer_value(w, kept_p, p0, work):
-        return kept_p, kept_c
-    real[6] = distance
-    return x, c
+        return kept_p, kept_c, kept_distance
+    return x, c, distance
 
 
 @numba.njit(cache=True)

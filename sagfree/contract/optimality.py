@@ -58,6 +58,22 @@ def gradient_scale(weights: np.ndarray, J) -> np.ndarray:
     return weights + column_norms(J) + 1e-300
 
 
+@numba.njit(cache=True)
+def gradient_scale_kernel(w, indptr, data):  # pragma: no cover - compiled
+    """``gradient_scale`` of J in compressed columns (indptr, data), callable from compiled code."""
+    return w + csc_column_norms(indptr, data) + 1e-300
+
+
+@numba.njit(cache=True)
+def working_set_kernel(p, lower, upper, near):  # pragma: no cover - compiled
+    """``working_set``, callable from compiled code."""
+    free = np.empty(p.size, dtype=np.bool_)
+    for j in range(p.size):
+        slack = near * (upper[j] - lower[j])
+        free[j] = (p[j] - lower[j] > slack) and (upper[j] - p[j] > slack)
+    return free
+
+
 def working_set(p, lower, upper, near: float = 1e-6) -> np.ndarray:
     """The variables farther than ``near`` of their box's width from both bounds (kkt_optimality's
     first working set)."""
@@ -147,12 +163,11 @@ def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w,
     working set (linalg.saddle.constrained_step); no_band_factors() where there are none."""
     factors, half, pivots, kept, reduced, nearby_free = nearby
     n = p.size
-    scale = w + csc_column_norms(indptr, data) + 1e-300  # gradient_scale
-    at_lower, active = np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_)
+    scale = gradient_scale_kernel(w, indptr, data)
+    active = ~working_set_kernel(p, lower, upper, near)
+    at_lower = np.empty(n, dtype=np.bool_)
     for j in range(n):
         at_lower[j] = p[j] - lower[j] <= upper[j] - p[j]
-        slack = near * (upper[j] - lower[j])  # working_set
-        active[j] = not ((p[j] - lower[j] > slack) and (upper[j] - p[j] > slack))
     threshold = 1e-3 * KKT_TOL
     step, gradient, wrong, solved = np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.bool_), False
     refine = factors.size > 0
