@@ -47,8 +47,15 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     Lagrangian then lost feasibility from it. With a pinned tip, from p0 too: from the linear start
     asc ended at other KKT points or crawled (horizontal(n=100, tip="pinned"): R 0.49 after
     stabilization against Ipopt's 6.8e-5), where from p0 it reaches Ipopt's optimum in a few
-    Gauss-Newton steps. A clamped tip keeps the linear start, from which asc reaches the optimum
-    there more closely (benchmarks/RESULTS.md, 2026-12-03). The first
+    Gauss-Newton steps. Pins hold points too, and start from p0 as well: from the linear start, 17
+    of 60 groom strands pinned at their middle vertex ended max_iterations, none from p0 (benchmarks/
+    RESULTS.md, 2026-12-05, twenty-sixth session). A clamped tip keeps the linear start, from which
+    asc reaches the optimum there more closely (benchmarks/RESULTS.md, 2026-12-03). A default solve
+    that ends max_iterations all the same begins again from the other start (p0 after the linear
+    start, the linear start after p0) with what is left of max_iterations and max_seconds, and
+    answers with that solve if it converges (its message says so; the counts and the time are both
+    solves'): on longer strands held at two points, each start converges on some strands where the
+    other crawls. The first
     inner solve is loose (omega0 = 1). An outer iteration whose inner solve took no step only
     tightens omega, by as many factors of 10 as it takes to fall below the current pi (one factor
     per outer iteration repeated the same test at the same p: 10.9 -> 6.4 outer iterations per
@@ -135,6 +142,7 @@ The measurements behind these choices are in benchmarks/RESULTS.md.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -211,14 +219,63 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     stopping test, before the KKT distance confirms). max_outer: augmented Lagrangian iterations.
     mu0, mu_growth, omega0: the penalty's floor and growth, the first inner target. preconditioner:
     "cholesky" (active-set Cholesky), "jacobi" or "none". qp_rtol: relative tolerance of the box
-    QPs. start: "auto" starts per-element stiffness from linear_start (from p0 with bodies or a
-    pinned tip: module docstring, Start), which for a strand held by its root alone is the optimum
-    (solvers.statics_start); "linear" the same without that last step (the least rest change spread
-    into the boxes: the Gauss-Newton loop's own path, for comparisons and tests); "p0" from p0.
+    QPs. start: "auto" starts per-element stiffness from linear_start (from p0 with bodies, a
+    pinned tip or pins: module docstring, Start), which for a strand held by its root alone is the
+    optimum (solvers.statics_start), and where that solve ends max_iterations, from the other of
+    the two; "linear" the same without that last step (the least rest change spread into the boxes:
+    the Gauss-Newton loop's own path, for comparisons and tests; p0 with bodies) and without the
+    second start; "p0" from p0 alone.
     """
-    clock = time.perf_counter()
     if start not in ("auto", "linear", "p0"):
         raise ValueError(f"start must be 'auto', 'linear' or 'p0', got {start!r}")
+    options = dict(tol=tol, kkt_tol=kkt_tol, max_iterations=max_iterations, gradient_tol=gradient_tol,
+                   max_outer=max_outer, mu0=mu0, mu_growth=mu_growth, omega0=omega0, preconditioner=preconditioner,
+                   qp_rtol=qp_rtol)
+    clock = time.perf_counter()
+    result = _solve_from(problem, p_start, start, max_seconds=max_seconds, **options)
+    other = _other_start(problem) if p_start is None and start == "auto" else None
+    seconds, steps = max_seconds - (time.perf_counter() - clock), max_iterations - result.iterations["gauss_newton"]
+    if result.status != "max_iterations" or other is None or not seconds > 0 or steps <= 0:
+        return result
+    # the other start (module docstring, Start) with what is left of the budgets: its answer if it converges
+    retry = _solve_from(problem, None, other, max_seconds=seconds, **{**options, "max_iterations": steps})
+    counts = {name: result.iterations.get(name, 0) + retry.iterations.get(name, 0) for name in result.iterations}
+    first, then = ("the linear start", "p0") if other == "p0" else ("p0", "the linear start")
+    if retry.status == "converged":
+        return dataclasses.replace(retry, iterations=counts, time=result.time + retry.time,
+                                   history=result.history + retry.history,
+                                   message=f"{retry.message}, from {then} ({first} ended max_iterations)")
+    return dataclasses.replace(result, iterations=counts, time=result.time + retry.time,
+                               message=f"{result.message}; from {then} too: {retry.message}")
+
+
+def _other_start(problem: Problem) -> str | None:
+    """The start a default solve (start "auto") that ended max_iterations tries next: p0 after the
+    linear start, the linear start after p0 where it applies, else None."""
+    if _resolved_start(problem, "auto") != "p0":
+        return "p0"
+    return "linear" if _resolved_start(problem, "linear") == "linear" else None
+
+
+def _resolved_start(problem: Problem, start: str) -> str:
+    """Where a solve with option ``start`` begins: "p0", "linear" (the least rest change spread into
+    the boxes) or "auto" (the same, at the statics optimum where it applies), by the rule of the
+    module docstring (Start). The linear start needs per-element stiffness to spread into and no
+    bodies (whose supports it would clip); "auto" begins at p0 where the strand is held at a point
+    besides its root (a pinned tip, pins)."""
+    if (start == "p0" or problem.layout.stiffness != "element" or CONTACT_BLOCK in problem.blocks
+            or not any(b in problem.blocks for b in STIFFNESS_BLOCKS)):
+        return "p0"
+    if start == "auto" and (problem.strand.tip == "pinned" or len(problem.strand.pins)):
+        return "p0"
+    return start
+
+
+def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: float, max_iterations: int,
+                max_seconds: float, gradient_tol: float, max_outer: int, mu0: float, mu_growth: float,
+                omega0: float, preconditioner: str, qp_rtol: float) -> Result:
+    """solve_alm from ``p_start`` or, if None, from the start named by ``start``."""
+    clock = time.perf_counter()
     if preconditioner not in PRECONDITIONERS:
         raise ValueError(f"preconditioner must be one of {tuple(PRECONDITIONERS)}, got {preconditioner!r}")
     history: list[float] = []
@@ -250,8 +307,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
 
     if p_start is None:
         p_start = problem.p0
-        if (start != "p0" and problem.layout.stiffness == "element" and CONTACT_BLOCK not in problem.blocks
-                and problem.strand.tip != "pinned" and any(b in problem.blocks for b in STIFFNESS_BLOCKS)):
+        if _resolved_start(problem, start) != "p0":
             confirmed = confirmed_start(problem, tol, kkt_tol) if start == "auto" else None
             linear = confirmed.p if confirmed is not None else linear_start(problem, optimal=start == "auto")
             if linear is not None:
