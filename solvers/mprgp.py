@@ -44,7 +44,11 @@ factorizations the QP goes to Mehrotra's interior-point method (from its own sta
 duality gap of INTERIOR_GAP, then put on the bounds it identifies), and MPRGP goes on, with the
 prelude, from the better of the two points (lower f) to the tolerance set by x0. WALKING = 20 is
 the budget that balances strand QPs (fewer factorizations with a smaller budget) against element
-QPs (more).
+QPs (more). Where the prelude ran, a walk first sends MPRGP back to x0 without the prelude, with
+another WALKING factorizations, and only a second walk goes to the interior-point method: a
+prelude's guess can lead into a walk that MPRGP from x0 (Gauss-Newton's warm start, the previous
+step's active bounds) avoids, and at 2000 vertices the interior-point method's ~60 factorizations
+cost more than the walk (one QP of a pinned groom strand: 84 factorizations, 6 from x0).
 The measurements behind these choices are in benchmarks/RESULTS.md.
 """
 from __future__ import annotations
@@ -137,8 +141,15 @@ def box_qp(band, border, corner, b, lower, upper, x0, rtol, atol, max_iterations
     for j in range(n):  # the scaled QP
         sb[j], sl[j], su[j] = s[j] * b[j], lower[j] / s[j], upper[j] / s[j]
         y[j] = min(max(x0[j] / s[j], sl[j]), su[j])
+    start = y.copy()
     status, pg, tol = _mprgp(scaled_band, scaled_border, scaled_corner, sb, sl, su, y, rtol, atol, max_iterations,
                              precond, gamma, active_set_steps, walking, counts)
+    if status == 4 and active_set_steps > 0 and precond == 2:  # walking after the prelude: from x0 without it
+        y = start
+        used = counts[CG] + counts[EXPANSION] + counts[PROPORTIONING]
+        status, pg, tol = _mprgp(scaled_band, scaled_border, scaled_corner, sb, sl, su, y, rtol, atol,
+                                 max(max_iterations - used, 0), precond, gamma, 0, counts[FACTORIZATIONS] + walking,
+                                 counts)
     if status == 4:  # walking: the interior-point fallback (module docstring)
         z = np.empty_like(y)
         iterations, factorizations = interior_point(scaled_band, scaled_border, scaled_corner, sb, sl, su, z,

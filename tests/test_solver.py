@@ -329,12 +329,16 @@ def test_a_long_strand_with_a_pinned_tip_steps_before_its_first_multiplier_updat
     """A groom strand of 2000 vertices with its tip pinned: at p0 the scaled gradient met the inner
     target without a step, and the multiplier update lam = mu c that followed sent asc into
     stiffening it never left (max_iterations at R 2.6e-5, where Ipopt reaches 2.87e-7). While no
-    Gauss-Newton step has moved p, the loop now steps first (alm module docstring, Start)."""
+    Gauss-Newton step has moved p, the loop now steps first (alm module docstring, Start). One of
+    its Gauss-Newton QPs walked after the primal-dual prelude's guess and went to the interior-point
+    method (94 factorizations in all); MPRGP from the QP's own start solves it (mprgp module
+    docstring)."""
     problem = sagfree.Problem(sagfree.scenes.groom(3, 2000, seed=0)[1].attached(tip="pinned"))
     result = solve_alm(problem)
     assert result.status == "converged", result.message
     assert result.objective < 3e-7
     assert kkt_optimality(problem, result.p) <= KKT_TOL
+    assert result.iterations["interior"] == 0 and result.iterations["factorizations"] < 50, result.iterations
 
 
 @pytest.mark.parametrize("dense_column", [True, False])
