@@ -93,7 +93,10 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     first-order cost of reaching c = 0 from there (_newton_sqp). A KKT point that raised R is kept
     all the same (the one with the least R, _newton_attempt), and it is the answer if the loop then
     ends without converging (a strand with a tight curvature budget crawled to max_outer above
-    Newton's point in R). The same is
+    Newton's point in R). Once the attempts are used up, CRAWL_ROUNDS such outer iterations in a row
+    end the solve (max_iterations, or that kept point): Gauss-Newton then crawls at the feasible p
+    until max_outer, and no solve of the strands measured converged after such a run (benchmarks/
+    RESULTS.md, 2026-12-05, twenty-sixth session). The same is
     tried where the constraint stalls near feasibility (|c|_inf <= NEWTON_NEAR) and the SQP step
     below fails: on strands of 1000 and more vertices that step (diagonal W) is useless, and the
     larger mu that followed made Gauss-Newton crawl along the soft modes at |c|_inf ~1e-8, within
@@ -165,8 +168,8 @@ from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, 
                            InnerState)
 from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
-from .outer_loop import (MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS, NEWTON_NEAR,
-                         NEWTON_STEPS, SQP_DECREASE, feasibility_cost)
+from .outer_loop import (CRAWL_ROUNDS, MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS,
+                         NEWTON_NEAR, NEWTON_STEPS, SQP_DECREASE, feasibility_cost)
 from .confirmed_start import confirmed_start
 from .statics_start import square_rest_system, statics_start, unbalanceable
 
@@ -443,6 +446,8 @@ def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: floa
                 converged = True
         if converged:
             return converged_at(violation, distance)
+        if attempts >= NEWTON_ATTEMPTS and feasible_rounds >= CRAWL_ROUNDS:  # the compiled loop's CRAWLED
+            return finish("max_iterations", _crawl_message(problem, p, violation, counts["outer"], tol, kkt_tol))
         if stalls:
             if event is None:  # the compiled loop grew it already
                 mu *= mu_growth
@@ -473,6 +478,15 @@ def _inner_stop(reason: int, qp_status: str, max_iterations: int, clock: float, 
         return "max_iterations", (f"stopped after {time.perf_counter() - clock:.3g} s (max_seconds) and "
                                   f"{counts['gauss_newton']} Gauss-Newton steps with |c|_inf = {history[-1]:.3g}")
     return "failed", f"the Gauss-Newton QP failed ({qp_status}) at step {counts['gauss_newton']}"
+
+
+def _crawl_message(problem: Problem, p, violation: float, outer: int, tol: float, kkt_tol: float) -> str:
+    """The message of a solve whose Gauss-Newton steps crawled at a feasible p for CRAWL_ROUNDS outer
+    iterations after its last Newton-SQP attempt (module docstring, Newton-SQP)."""
+    return (f"stopped after {outer} outer iterations at a feasible point (|c|_inf = {violation:.3g} <= {tol:g}) "
+            f"whose KKT distance {kkt_optimality(problem, p):.3g} stays above {kkt_tol:g}: Gauss-Newton crawled "
+            f"there for {CRAWL_ROUNDS} outer iterations after the last Newton-SQP attempt; loosen kkt_tol to accept "
+            "it (command line: --option kkt_tol=X)")
 
 
 def _max_outer_message(problem: Problem, p, violation: float, max_outer: int, tol: float, kkt_tol: float) -> str:

@@ -48,8 +48,9 @@ from .gauss_newton import (INNER_STEPS, MAX_ITERATIONS, MAX_SECONDS, QP_FAILED, 
 from .multipliers import SHIFT
 
 # why outer_iterations returned: converged (the distance in Stop.distance); an inner solve's limit or
-# failure (Stop.reason, Stop.qp_status); out of outer iterations; the infeasibility test for solve_alm
-CONVERGED, INNER_STOPPED, OUT_OF_OUTER, INFEASIBILITY = range(4)
+# failure (Stop.reason, Stop.qp_status); out of outer iterations; the infeasibility test for solve_alm;
+# Gauss-Newton crawled at a feasible p after the last Newton-SQP attempt (solve_alm ends the solve)
+CONVERGED, INNER_STOPPED, OUT_OF_OUTER, INFEASIBILITY, CRAWLED = range(5)
 #: outer counters the loop advances, in the order of its array
 OUTER_COUNTED = ("outer", "sqp", "tightened", "newton_sqp")
 
@@ -62,6 +63,7 @@ NEWTON_AFTER = 1  # ... each after this many crawling outer iterations in a row 
 NEWTON_STEPS = 30  # exact-Hessian SQP steps per attempt (alm module docstring, Newton-SQP)
 NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
 NEWTON_HALVINGS = 8  # ... at most this many times (alm._newton_trial)
+CRAWL_ROUNDS = 10  # feasible crawling outer iterations in a row after the last attempt that end the solve
 NEAR = 1e-6  # contract.optimality.working_set's default: the free set of the SQP step and the KKT distance
 
 
@@ -270,6 +272,9 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
                 converged = True
         if converged:
             event = CONVERGED
+            break
+        if attempts >= NEWTON_ATTEMPTS and feasible_rounds >= CRAWL_ROUNDS:
+            event = CRAWLED  # alm: the crawl ends the solve (module docstring, Newton-SQP)
             break
         if stalls:
             mu *= mu_growth

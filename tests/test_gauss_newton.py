@@ -187,3 +187,16 @@ def test_the_compiled_loops_residual_norm_is_numpys_nan_included(c):
     """|c|_inf as the Python loop takes it: a residual that is not a number must not count as small."""
     c = np.array(c, dtype=float)
     assert np.array_equal(gauss_newton.largest_magnitude(c), np.abs(c).max(initial=0.0), equal_nan=True)
+
+
+def test_a_crawl_at_a_feasible_point_ends_the_solve_in_both_loops(monkeypatch):
+    """horizontal(400, pins=[200]) from p0: once its Newton-SQP attempts are used up, Gauss-Newton
+    crawls at a feasible point whose KKT distance stays above kkt_tol; CRAWL_ROUNDS outer iterations
+    of that end the solve (alm module docstring, Newton-SQP), where it ran on to max_outer."""
+    problem = Problem(sagfree.scenes.horizontal(n=400, pins=[200]), stabilize=False)
+    compiled, python = solved_both_ways(monkeypatch, problem, start="p0")
+    assert compiled.status == "max_iterations", compiled.message
+    assert f"crawled there for {outer_loop.CRAWL_ROUNDS} outer iterations" in compiled.message
+    assert compiled.iterations["outer"] < 60 and compiled.iterations["newton_sqp"] > 0
+    assert np.array_equal(compiled.p, python.p) and compiled.iterations == python.iterations
+    assert (compiled.status, compiled.message) == (python.status, python.message)

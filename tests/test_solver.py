@@ -322,7 +322,8 @@ def test_the_constraints_curvature_finishes_a_strand_held_at_both_ends(monkeypat
     with monkeypatch.context() as patch:
         patch.setattr(gauss_newton, "curvature_applies", lambda problem, border: False)
         crawled = solve_alm(problem, start="p0")  # the default start, without the second one
-    assert crawled.status == "max_iterations" and crawled.iterations["gauss_newton"] > 100
+    assert crawled.status == "max_iterations" and "Gauss-Newton crawled there" in crawled.message
+    assert crawled.iterations["gauss_newton"] > 10 * result.iterations["gauss_newton"]
 
 
 def test_a_long_strand_with_a_pinned_tip_steps_before_its_first_multiplier_update():
