@@ -17,7 +17,6 @@ import argparse
 import os
 import time
 
-
 import sagfree
 
 WAYS = {"default": {}, "linear": {"start": "linear"}, "p0": {"start": "p0"}}
