@@ -88,7 +88,11 @@ Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixe
     kkt_tol, NEWTON_STEPS steps of SQP with the exact Hessian of the Lagrangian
     W = diag(w) + sum lam_r c_r'' (Problem.constraint_hessian_entries; the least-squares multipliers
     at the start, then each step's own; one band LU each, a second-order correction back to c = 0)
-    are tried (counted as ``newton_sqp``); their
+    are tried (counted as ``newton_sqp``), first with each step bounded: the QP of the step with the
+    box (lower <= p + d <= upper) by primal-dual active-set rounds on the saddle system
+    (outer_loop.bounded_newton_step), where the equality step on the working set, clipped to the box,
+    reached other KKT points (horizontal(200, pins=[100]): R 3.3% above Ipopt's, which the bounded
+    steps reach), then, if those fail, with the equality steps; their
     point is taken if it passes the convergence test without raising R above its start's plus the
     first-order cost of reaching c = 0 from there (_newton_sqp). A KKT point that raised R is kept
     all the same (the one with the least R, _newton_attempt), and it is the answer if the loop then
@@ -157,8 +161,9 @@ from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.parameters import CONTACT_BLOCK, REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import spread_rest_change, stiffest
+from sagfree.linalg import lapack
 from sagfree.linalg.band import BorderedBand, column_norms, gram
-from sagfree.linalg.saddle import SaddleFactor, constrained_step
+from sagfree.linalg.saddle import SaddleFactor, band_order, constrained_step
 from sagfree.linalg.square import square_column_solve
 from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
@@ -617,9 +622,11 @@ def _corrected_trial(hessian, state: InnerState, J: StrandJacobian, p, step, c, 
                                         lower, upper)
 
 
-def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float, halvings: int = 0):
+def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float, halvings: int = 0,
+                bounded: bool = False):
     """(p, c, KKT distance, raised) after at most NEWTON_STEPS exact-Hessian SQP steps from the
-    feasible or nearly feasible p (module docstring, Newton-SQP), or None unless they end at a point
+    feasible or nearly feasible p (module docstring, Newton-SQP), each bounded where ``bounded``
+    (_bounded_newton_step: the step below with the box kept), or None unless they end at a point
     with |c|_inf <= tol and KKT distance <= kkt_tol. raised: R there is above R(p) plus rounding plus
     max(0, lam^T c(p)), the first-order change of R from p to c = 0 with p's least-squares
     multipliers: from an infeasible p, reaching c = 0 may cost R, and without that allowance a
@@ -652,13 +659,22 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
                 return None
             start_objective += feasibility_cost(lam, c)
         curvature = problem.constraint_hessian_entries(x, lam)
-        factor = SaddleFactor(J, model.w, free, curvature)
-        if factor.singular:  # too few free directions (as in kkt_optimality): free those near a bound
-            free = (x > lower) & (x < upper)
+        if bounded:
+            bounded_step = _bounded_newton_step(J, model.w, free, curvature, gradient, c, x, lower, upper)
+            if bounded_step is None:  # too few free directions (as below): free those near a bound
+                free = (x > lower) & (x < upper)
+                bounded_step = _bounded_newton_step(J, model.w, free, curvature, gradient, c, x, lower, upper)
+            if bounded_step is None:
+                return None
+            step, lam, free = bounded_step
+        else:
             factor = SaddleFactor(J, model.w, free, curvature)
-        if factor.singular:
-            return None
-        step, lam = factor.solve(gradient, c)
+            if factor.singular:  # too few free directions (as in kkt_optimality): free those near a bound
+                free = (x > lower) & (x < upper)
+                factor = SaddleFactor(J, model.w, free, curvature)
+            if factor.singular:
+                return None
+            step, lam = factor.solve(gradient, c)
         if not np.all(np.isfinite(step)):
             return None
         counts["newton_sqp"] += 1
@@ -674,17 +690,33 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
 
 
 def _newton_attempt(problem: Problem, model: _Model, p, counts: dict, tol: float, kkt_tol: float, kept):
-    """(point, kept): an attempt of Newton-SQP from p (module docstring), its full steps and then, if
-    they fail, its halved ones; point = (p, c, KKT distance) where one ends at a KKT point without
-    raising R, else None. kept: the KKT point with the least R that raised it, of this attempt and
-    the earlier ``kept``."""
-    for halvings in (0, NEWTON_HALVINGS):
-        newton = _newton_sqp(problem, model, p, counts, tol, kkt_tol, halvings)
+    """(point, kept): an attempt of Newton-SQP from p (module docstring), its bounded steps, then, if
+    they fail, its full equality steps and then its halved ones; point = (p, c, KKT distance) where
+    one ends at a KKT point without raising R, else None. kept: the KKT point with the least R that
+    raised it, of this attempt and the earlier ``kept``."""
+    for halvings, bounded in ((0, True), (0, False), (NEWTON_HALVINGS, False)):
+        newton = _newton_sqp(problem, model, p, counts, tol, kkt_tol, halvings, bounded)
         if newton is not None and not newton[3]:
             return newton[:3], kept
         if newton is not None and (kept is None or problem.objective(newton[0]) < problem.objective(kept[0])):
             kept = newton[:3]
     return None, kept
+
+
+@timed(LINEAR_ALGEBRA)
+def _bounded_newton_step(J: StrandJacobian, w, free, curvature, gradient, c, x, lower, upper):
+    """(d, lam, free) of outer_loop.bounded_newton_step (the compiled loop's kernel, so both loops
+    take the same steps), or None where its first system is singular or the saddle system is not a
+    band (then Newton-SQP goes on with its equality steps)."""
+    indptr, indices, values = J.csc()
+    position = band_order(indptr, indices, c.size)
+    if position is None:
+        return None
+    rows, columns, entries = curvature
+    found, step, lam, free = outer_loop.bounded_newton_step(
+        lapack.DGBTRF, lapack.DGBTRS, indptr, indices, values, w, np.ascontiguousarray(free), position, rows, columns,
+        entries, np.ascontiguousarray(gradient, dtype=float), np.ascontiguousarray(c, dtype=float), x, lower, upper)
+    return (step, lam, free) if found else None
 
 
 def _newton_trial(problem: Problem, w, J, x, step, c, free, tol: float, halvings: int):

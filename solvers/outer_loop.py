@@ -37,7 +37,7 @@ from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.band import dense_count
-from sagfree.linalg.compressed import csc_rmatvec
+from sagfree.linalg.compressed import csc_matvec, csc_rmatvec
 from sagfree.linalg.normal import seminormal_kernel
 from sagfree.linalg.saddle import (band_factors, band_order, no_band_factors, plain_band_factors,
                                    solve_band_factors)
@@ -64,6 +64,7 @@ NEWTON_STEPS = 30  # exact-Hessian SQP steps per attempt (alm module docstring, 
 NEWTON_GROWTH = 10.0  # a retried attempt halves a step while it leaves |c|_inf above this factor of its start ...
 NEWTON_HALVINGS = 8  # ... at most this many times (alm._newton_trial)
 CRAWL_ROUNDS = 10  # feasible crawling outer iterations in a row after the last attempt that end the solve
+BOUND_ROUNDS = 5  # primal-dual active-set rounds of a bounded Newton-SQP step (bounded_newton_step)
 NEAR = 1e-6  # contract.optimality.working_set's default: the free set of the SQP step and the KKT distance
 
 
@@ -255,15 +256,19 @@ def _outer(forces_args, jacobian_args, curvature_args, curved, free, row_scale, 
             attempts, feasible_rounds = attempts + 1, 0
             newton = (forces_args, jacobian_args, curvature_args, free, row_scale, indptr, indices, position, dgbtrf,
                       dgbtrs, w, p0, lower, upper, p, c, values, tol, kkt_tol, clock, clock_id, outer_counts, seconds)
-            # np.int64: literal ints would compile _newton_sqp once for each; alm._newton_attempt
-            found, raised, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(0))
-            if found and raised:
-                kept_p, kept_c, kept_distance = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, kept_distance)
-            if not found or raised:  # again, each step halved while it leaves |c|_inf far above its start
-                found, raised, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, np.int64(NEWTON_HALVINGS))
+            # np.int64: literal ints would compile _newton_sqp once for each; alm._newton_attempt: the
+            # bounded steps, the equality steps, then those halved while they leave |c|_inf far above
+            # their start
+            found, raised = False, False
+            for variant in range(3):
+                halvings = np.int64(NEWTON_HALVINGS) if variant == 2 else np.int64(0)
+                bounded = variant == 0
+                found, raised, x, c_x, f_x, values_x, distance_x = _newton_sqp(*newton, halvings, bounded)
                 if found and raised:
                     kept_p, kept_c, kept_distance = _kept(w, p0, x, c_x, distance_x, kept_p, kept_c, kept_distance)
                     found = False
+                if found:
+                    break
             if found:
                 p, c, f, values, distance, moved_any = x, c_x, f_x, values_x, distance_x, True
                 violation = largest_magnitude(c)
@@ -370,11 +375,12 @@ def _sqp_step(forces_args, jacobian_args, free_index, row_scale, indptr, indices
 @numba.njit(cache=True)
 def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scale, indptr, indices, position, dgbtrf,
                 dgbtrs, w, p0, lower, upper, p, c, values, tol, kkt_tol, clock, clock_id, outer_counts, seconds,
-                halvings):  # pragma: no cover - compiled
+                halvings, bounded):  # pragma: no cover - compiled
     """alm._newton_sqp: (found, raised, p, c, f, dc/dp values, KKT distance) after at most
-    NEWTON_STEPS exact-Hessian SQP steps from p (c and dc/dp ``values`` there); found where they end
-    at |c|_inf <= tol and a KKT distance <= kkt_tol, raised where R is above alm's bound there.
-    Counts its steps in outer_counts[3]."""
+    NEWTON_STEPS exact-Hessian SQP steps from p (c and dc/dp ``values`` there), each bounded
+    (bounded_newton_step) where ``bounded``; found where they end at |c|_inf <= tol and a KKT
+    distance <= kkt_tol, raised where R is above alm's bound there. Counts its steps in
+    outer_counts[3]."""
     buffer = np.zeros(2, dtype=np.int64)
     n = p.size
     work = np.empty(n)
@@ -399,16 +405,32 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
         rows, columns, entries = at_rest.constraint_hessian_entries(x, lam, *curvature_args)
         now = timing.clock_seconds(clock, clock_id, buffer)
         seconds[0] += now - started
-        factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
-        if factors[0].size == 0:  # too few free directions (as in kkt_optimality): free those near a bound
-            for j in range(n):
-                free[j] = x[j] > lower[j] and x[j] < upper[j]
-            factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
-        if factors[0].size == 0:
+        if bounded:
+            found, step, lam_step, free_step = bounded_newton_step(dgbtrf, dgbtrs, indptr, indices, values, w, free,
+                                                                   position, rows, columns, entries, gradient, c, x,
+                                                                   lower, upper)
+            if not found:  # too few free directions (as below): free those near a bound
+                for j in range(n):
+                    free[j] = x[j] > lower[j] and x[j] < upper[j]
+                found, step, lam_step, free_step = bounded_newton_step(
+                    dgbtrf, dgbtrs, indptr, indices, values, w, free, position, rows, columns, entries, gradient, c,
+                    x, lower, upper)
             seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
-            return False, False, p, empty, empty, empty, np.inf
-        step, lam = solve_band_factors(dgbtrs, factors, gradient, c)
-        seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+            if not found:
+                return False, False, p, empty, empty, empty, np.inf
+            lam, free = lam_step, free_step
+        else:
+            factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
+            if factors[0].size == 0:  # too few free directions (as in kkt_optimality): free those near a bound
+                for j in range(n):
+                    free[j] = x[j] > lower[j] and x[j] < upper[j]
+                factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns,
+                                          entries)
+            if factors[0].size == 0:
+                seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+                return False, False, p, empty, empty, empty, np.inf
+            step, lam = solve_band_factors(dgbtrs, factors, gradient, c)
+            seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
         if not np.all(np.isfinite(step)):
             return False, False, p, empty, empty, empty, np.inf
         outer_counts[3] += 1
@@ -465,6 +487,68 @@ def _newton_trial(forces_args, free_index, row_scale, indptr, indices, values, p
             break
         fraction *= 0.5
     return True, trial, c_trial, f_trial
+
+
+@numba.njit(cache=True)
+def bounded_newton_step(dgbtrf, dgbtrs, indptr, indices, values, w, free, position, rows, columns, entries,
+                        gradient, c, x, lower, upper):  # pragma: no cover - compiled
+    """(found, d, lam, free) of a Newton-SQP step that keeps the box (alm module docstring,
+    Newton-SQP): the QP min 1/2 d^T W d + gradient^T d s.t. J d = -c, lower <= x + d <= upper (W =
+    diag(w) + the curvature triplets (rows, columns, entries), J in compressed columns ``values``)
+    by primal-dual active-set rounds (Hintermueller, Ito & Kunisch 2002) on the saddle system: the
+    variables off ``free`` are held on their nearer bound, the held ones solve the equality QP on the
+    rest, and the next round holds those the step pushes out of the box and releases the held ones
+    whose bound multiplier (W d + gradient + J^T lam there) has the wrong sign; it stops where the
+    sets repeat, after BOUND_ROUNDS, or where the system turns singular, with the last round's step
+    (the first round's: the equality step on ``free`` with the others moved onto their bounds).
+    found: false where the first round's system is singular or its step not finite. free: the variables the step left
+    free (what its correction keeps fixed, _newton_trial)."""
+    n = x.size
+    current = free.copy()
+    held_lower, held_upper = np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_)
+    for j in range(n):
+        held_lower[j] = not current[j] and x[j] - lower[j] <= upper[j] - x[j]
+        held_upper[j] = not current[j] and not held_lower[j]
+    found, last_d, last_lam, last_free = False, np.empty(0), np.empty(0), current.copy()
+    fixed = np.zeros(n)
+    for _ in range(BOUND_ROUNDS + 1):
+        for j in range(n):
+            fixed[j] = lower[j] - x[j] if held_lower[j] else (upper[j] - x[j] if held_upper[j] else 0.0)
+        factors = _curved_factors(dgbtrf, indptr, indices, values, w, current, position, rows, columns, entries)
+        if factors[0].size == 0:
+            break
+        pushed = _curvature_product(rows, columns, entries, fixed)
+        for j in range(n):
+            pushed[j] += gradient[j] + w[j] * fixed[j]
+        step, lam = solve_band_factors(dgbtrs, factors, pushed, c + csc_matvec(indptr, indices, values, fixed, c.size))
+        d = np.empty(n)
+        for j in range(n):
+            d[j] = step[j] if current[j] else fixed[j]
+        if not np.all(np.isfinite(d)):
+            break
+        found, last_d, last_lam, last_free = True, d, lam, current.copy()
+        multipliers = _curvature_product(rows, columns, entries, d) + csc_rmatvec(indptr, indices, values, lam)
+        changed = False
+        for j in range(n):
+            bound_multiplier = multipliers[j] + w[j] * d[j] + gradient[j]
+            to_lower = (current[j] and x[j] + d[j] < lower[j]) or (held_lower[j] and bound_multiplier >= 0.0)
+            to_upper = (current[j] and x[j] + d[j] > upper[j]) or (held_upper[j] and bound_multiplier <= 0.0)
+            changed = changed or to_lower != held_lower[j] or to_upper != held_upper[j]
+            held_lower[j], held_upper[j] = to_lower, to_upper
+        if not changed:
+            break
+        for j in range(n):
+            current[j] = not (held_lower[j] or held_upper[j])
+    return found, last_d, last_lam, last_free
+
+
+@numba.njit(cache=True)
+def _curvature_product(rows, columns, entries, v):  # pragma: no cover - compiled
+    """(sum of the curvature triplets) v, duplicates summed."""
+    out = np.zeros(v.size)
+    for k in range(rows.size):
+        out[rows[k]] += entries[k] * v[columns[k]]
+    return out
 
 
 @numba.njit(cache=True)

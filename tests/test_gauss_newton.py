@@ -200,3 +200,51 @@ def test_a_crawl_at_a_feasible_point_ends_the_solve_in_both_loops(monkeypatch):
     assert compiled.iterations["outer"] < 60 and compiled.iterations["newton_sqp"] > 0
     assert np.array_equal(compiled.p, python.p) and compiled.iterations == python.iterations
     assert (compiled.status, compiled.message) == (python.status, python.message)
+
+
+#: Ipopt's optimum R on horizontal(200, pins=[100]) without stabilization (``sagfree.solve(problem,
+#: "ipopt")``, 2026-12-05; its per-size compilation takes ~15 s, too long to repeat here)
+MIDDLE_PIN_IPOPT = 1.0334358e-3
+
+
+def test_newton_sqps_bounded_steps_reach_ipopts_optimum_in_both_loops(monkeypatch):
+    """horizontal(200, pins=[100]): Newton-SQP's equality steps, clipped to the box, ended at a KKT
+    point 3.3% above Ipopt's R (1.06774e-3); its bounded steps (outer_loop.bounded_newton_step), tried
+    first, reach Ipopt's optimum, the same in both loops."""
+    problem = Problem(sagfree.scenes.horizontal(n=200, pins=[100]), stabilize=False)
+    compiled, python = solved_both_ways(monkeypatch, problem)
+    assert compiled.status == "converged", compiled.message
+    assert compiled.objective == pytest.approx(MIDDLE_PIN_IPOPT, rel=1e-6)
+    assert compiled.iterations["newton_sqp"] > 0
+    assert np.array_equal(compiled.p, python.p) and compiled.iterations == python.iterations
+    assert (compiled.status, compiled.message) == (python.status, python.message)
+
+
+def test_a_bounded_newton_step_is_its_qps_kkt_point():
+    """Near the optimum of horizontal(200, pins=[100]) (rest curvatures on both bounds; these moved
+    by 1e-5 of their boxes), the bounded step solves min 1/2 d^T W d + g^T d s.t. J d = -c, lower
+    <= x + d <= upper: J d = -c, the box kept, W d + g + J^T lam zero on the free variables and of
+    the sign that holds each held one on its bound, to 1e-5 of its terms (the band LU's rounding on a
+    system whose rest-length columns are ~1e7 times the others)."""
+    problem = Problem(sagfree.scenes.horizontal(n=200, pins=[100]), stabilize=False)
+    optimum, w = alm.solve_alm(problem).p, problem.layout.weights
+    lower, upper, curvatures = problem.lower, problem.upper, problem.blocks["rest_curvature"]
+    x = optimum.copy()
+    noise = np.random.default_rng(0).uniform(-1, 1, curvatures.size)
+    x[curvatures] = np.clip(x[curvatures] + 1e-5 * noise * (upper - lower)[curvatures], lower[curvatures],
+                            upper[curvatures])
+    gradient, c, J = w * (x - problem.p0), problem.residual(x), problem.strand_jacobian(x)
+    lam = alm.least_squares_multipliers(gradient, J, alm.gradient_scale(w, J), x, lower, upper)
+    curvature = problem.constraint_hessian_entries(x, lam)
+    d, lam, free = alm._bounded_newton_step(J, w, alm.working_set(x, lower, upper), curvature, gradient, c, x,
+                                            lower, upper)
+    held_lower, held_upper = ~free & (x + d <= lower), ~free & (x + d >= upper)
+    assert np.array_equal(held_lower | held_upper, ~free) and held_lower.any() and held_upper.any()
+    W = problem.constraint_hessian(x, lam).toarray() + np.diag(w)
+    residual = W @ d + gradient + J.T @ lam
+    terms = np.abs(W) @ np.abs(d) + np.abs(gradient) + abs(J.tocsc()).T @ np.abs(lam)
+    assert np.abs(J @ d + c).max() <= 1e-12 * np.abs(c).max()
+    assert np.all(x + d >= lower) and np.all(x + d <= upper)
+    assert np.all(np.abs(residual[free]) <= 1e-5 * terms[free])
+    assert np.all(residual[held_lower] >= -1e-5 * terms[held_lower])
+    assert np.all(residual[held_upper] <= 1e-5 * terms[held_upper])
