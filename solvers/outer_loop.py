@@ -495,14 +495,13 @@ def bounded_newton_step(dgbtrf, dgbtrs, indptr, indices, values, w, free, positi
     """(found, d, lam, free) of a Newton-SQP step that keeps the box (alm module docstring,
     Newton-SQP): the QP min 1/2 d^T W d + gradient^T d s.t. J d = -c, lower <= x + d <= upper (W =
     diag(w) + the curvature triplets (rows, columns, entries), J in compressed columns ``values``)
-    by primal-dual active-set rounds (Hintermueller, Ito & Kunisch 2002) on the saddle system: the
-    variables off ``free`` are held on their nearer bound, the held ones solve the equality QP on the
-    rest, and the next round holds those the step pushes out of the box and releases the held ones
-    whose bound multiplier (W d + gradient + J^T lam there) has the wrong sign; it stops where the
-    sets repeat, after BOUND_ROUNDS, or where the system turns singular, with the last round's step
-    (the first round's: the equality step on ``free`` with the others moved onto their bounds).
-    found: false where the first round's system is singular or its step not finite. free: the variables the step left
-    free (what its correction keeps fixed, _newton_trial)."""
+    by primal-dual active-set rounds (Hintermueller, Ito & Kunisch 2002) on the saddle system. The
+    variables off ``free`` start held on their nearer bound; each round solves the equality QP of the
+    others with the held ones on their bounds, then holds those its step pushes out of the box and
+    releases the held ones whose bound multiplier (W d + gradient + J^T lam there) has the wrong
+    sign. It stops where the sets repeat, after BOUND_ROUNDS, or where the system turns singular,
+    with the last round's step. found: false where the first round's system is singular or its step
+    not finite. free: the variables the step left free (those its correction moves, _newton_trial)."""
     n = x.size
     current = free.copy()
     held_lower, held_upper = np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_)
