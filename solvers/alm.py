@@ -156,7 +156,7 @@ import numpy as np
 
 from sagfree.contract.optimality import (KKT_TOL, TOL, gradient_scale, kkt_optimality, scaled_projected_gradient,
                                          working_set)
-from sagfree.contract.result import Result, make_result
+from sagfree.contract.result import Result, make_result, summed_iterations
 from sagfree.formulation.jacobian import StrandJacobian
 from sagfree.formulation.parameters import CONTACT_BLOCK, REST_BLOCKS, STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
@@ -247,7 +247,7 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
         return result
     # the other start (module docstring, Start) with what is left of the budgets: its answer if it converges
     retry = _solve_from(problem, None, other, max_seconds=seconds, **{**options, "max_iterations": steps})
-    counts = {name: result.iterations.get(name, 0) + retry.iterations.get(name, 0) for name in result.iterations}
+    counts = summed_iterations(result.iterations, retry.iterations)
     first, then = ("the linear start", "p0") if other == "p0" else ("p0", "the linear start")
     if retry.status == "converged":
         return dataclasses.replace(retry, iterations=counts, time=result.time + retry.time,
@@ -659,22 +659,13 @@ def _newton_sqp(problem: Problem, model: _Model, p, counts: dict, tol: float, kk
                 return None
             start_objective += feasibility_cost(lam, c)
         curvature = problem.constraint_hessian_entries(x, lam)
-        if bounded:
-            bounded_step = _bounded_newton_step(J, model.w, free, curvature, gradient, c, x, lower, upper)
-            if bounded_step is None:  # too few free directions (as below): free those near a bound
-                free = (x > lower) & (x < upper)
-                bounded_step = _bounded_newton_step(J, model.w, free, curvature, gradient, c, x, lower, upper)
-            if bounded_step is None:
-                return None
-            step, lam, free = bounded_step
-        else:
-            factor = SaddleFactor(J, model.w, free, curvature)
-            if factor.singular:  # too few free directions (as in kkt_optimality): free those near a bound
-                free = (x > lower) & (x < upper)
-                factor = SaddleFactor(J, model.w, free, curvature)
-            if factor.singular:
-                return None
-            step, lam = factor.solve(gradient, c)
+        direction = _newton_direction(J, model.w, free, curvature, gradient, c, x, lower, upper, bounded)
+        if direction is None:  # too few free directions (as in kkt_optimality): free those near a bound
+            free = (x > lower) & (x < upper)
+            direction = _newton_direction(J, model.w, free, curvature, gradient, c, x, lower, upper, bounded)
+        if direction is None:
+            return None
+        step, lam, free = direction
         if not np.all(np.isfinite(step)):
             return None
         counts["newton_sqp"] += 1
@@ -701,6 +692,19 @@ def _newton_attempt(problem: Problem, model: _Model, p, counts: dict, tol: float
         if newton is not None and (kept is None or problem.objective(newton[0]) < problem.objective(kept[0])):
             kept = newton[:3]
     return None, kept
+
+
+def _newton_direction(J: StrandJacobian, w, free, curvature, gradient, c, x, lower, upper, bounded: bool):
+    """(d, lam, free) of one Newton-SQP step from x (outer_loop._newton_direction): the bounded step
+    where ``bounded`` (_bounded_newton_step), else the equality step on ``free``; None where its
+    system is singular."""
+    if bounded:
+        return _bounded_newton_step(J, w, free, curvature, gradient, c, x, lower, upper)
+    factor = SaddleFactor(J, w, free, curvature)
+    if factor.singular:
+        return None
+    step, lam = factor.solve(gradient, c)
+    return step, lam, free
 
 
 @timed(LINEAR_ALGEBRA)

@@ -405,32 +405,19 @@ def _newton_sqp(forces_args, jacobian_args, curvature_args, free_index, row_scal
         rows, columns, entries = at_rest.constraint_hessian_entries(x, lam, *curvature_args)
         now = timing.clock_seconds(clock, clock_id, buffer)
         seconds[0] += now - started
-        if bounded:
-            found, step, lam_step, free_step = bounded_newton_step(dgbtrf, dgbtrs, indptr, indices, values, w, free,
-                                                                   position, rows, columns, entries, gradient, c, x,
-                                                                   lower, upper)
-            if not found:  # too few free directions (as below): free those near a bound
-                for j in range(n):
-                    free[j] = x[j] > lower[j] and x[j] < upper[j]
-                found, step, lam_step, free_step = bounded_newton_step(
-                    dgbtrf, dgbtrs, indptr, indices, values, w, free, position, rows, columns, entries, gradient, c,
-                    x, lower, upper)
-            seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
-            if not found:
-                return False, False, p, empty, empty, empty, np.inf
-            lam, free = lam_step, free_step
-        else:
-            factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
-            if factors[0].size == 0:  # too few free directions (as in kkt_optimality): free those near a bound
-                for j in range(n):
-                    free[j] = x[j] > lower[j] and x[j] < upper[j]
-                factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns,
-                                          entries)
-            if factors[0].size == 0:
-                seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
-                return False, False, p, empty, empty, empty, np.inf
-            step, lam = solve_band_factors(dgbtrs, factors, gradient, c)
-            seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+        found, step, lam_step, free_step = _newton_direction(bounded, dgbtrf, dgbtrs, indptr, indices, values, w, free,
+                                                             position, rows, columns, entries, gradient, c, x, lower,
+                                                             upper)
+        if not found:  # too few free directions (as in kkt_optimality): free those near a bound
+            for j in range(n):
+                free[j] = x[j] > lower[j] and x[j] < upper[j]
+            found, step, lam_step, free_step = _newton_direction(bounded, dgbtrf, dgbtrs, indptr, indices, values, w,
+                                                                 free, position, rows, columns, entries, gradient, c,
+                                                                 x, lower, upper)
+        seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+        if not found:
+            return False, False, p, empty, empty, empty, np.inf
+        lam, free = lam_step, free_step
         if not np.all(np.isfinite(step)):
             return False, False, p, empty, empty, empty, np.inf
         outer_counts[3] += 1
@@ -487,6 +474,22 @@ def _newton_trial(forces_args, free_index, row_scale, indptr, indices, values, p
             break
         fraction *= 0.5
     return True, trial, c_trial, f_trial
+
+
+@numba.njit(cache=True)
+def _newton_direction(bounded, dgbtrf, dgbtrs, indptr, indices, values, w, free, position, rows, columns, entries,
+                      gradient, c, x, lower, upper):  # pragma: no cover - compiled
+    """(found, d, lam, free) of one Newton-SQP step from x: bounded_newton_step where ``bounded``, else
+    the equality step on ``free`` (SaddleFactor(J, w, free, curvature).solve(gradient, c)); found false
+    where its system is singular."""
+    if bounded:
+        return bounded_newton_step(dgbtrf, dgbtrs, indptr, indices, values, w, free, position, rows, columns, entries,
+                                   gradient, c, x, lower, upper)
+    factors = _curved_factors(dgbtrf, indptr, indices, values, w, free, position, rows, columns, entries)
+    if factors[0].size == 0:
+        return False, np.empty(0), np.empty(0), free
+    step, lam = solve_band_factors(dgbtrs, factors, gradient, c)
+    return True, step, lam, free
 
 
 @numba.njit(cache=True)

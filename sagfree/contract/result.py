@@ -239,6 +239,12 @@ def _support(problem: Problem, contacts: np.ndarray) -> float:
     return float(-contacts.sum(axis=0) @ load / (load @ load)) if load @ load > 0 else 0.0
 
 
+def summed_iterations(counts: dict, more: dict) -> dict:
+    """Two solves' ``iterations`` added kind by kind (a solve that ran another after it: asc's second
+    start, the stabilization's re-solves)."""
+    return {name: counts.get(name, 0) + more.get(name, 0) for name in {**counts, **more}}
+
+
 def status_counts(results: list[Result]) -> dict[str, int]:
     """Strands per status, in STATUSES order, statuses with no strand left out."""
     return {s: n for s in STATUSES if (n := sum(r.status == s for r in results))}

@@ -52,7 +52,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sagfree.contract.optimality import KKT_TOL, TOL
-from sagfree.contract.result import Result, make_result
+from sagfree.contract.result import Result, make_result, summed_iterations
 from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK, number_ranges
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
@@ -102,11 +102,11 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
     setup = result.setup_time
     if function is solve_alm:
         floored, result, rounds, verdict = floors_loop(solve_alm, problem, options, result)
-        counts = _add(counts, result.iterations)
+        counts = summed_iterations(counts, result.iterations)
     else:  # the floors of asc's loop, then this solver on the floored problem from its own solution
         floored, _, rounds, _ = floors_loop(solve_alm, problem, {})
         result = function(floored, **{**options, "p_start": _restiffened(floored, result.p)})
-        counts = _add(counts, result.iterations)
+        counts = summed_iterations(counts, result.iterations)
         setup += result.setup_time
         value = floored.stability(result.p)
         verdict = None
@@ -163,7 +163,7 @@ def floors_loop(function, problem: Problem, options: dict, result: Result | None
             break
         current = current.with_lower_bounds(floors)
         result = function(current, **options)
-        counts = _add(counts, result.iterations)
+        counts = summed_iterations(counts, result.iterations)
         rounds += 1
     return current, dataclasses.replace(result, iterations=counts), rounds, verdict
 
@@ -282,10 +282,6 @@ def _landing(floored: Problem, p: np.ndarray) -> np.ndarray:
 def _restiffened(floored: Problem, p: np.ndarray) -> np.ndarray:
     """p raised onto the floors of ``floored`` with its forces kept (rest_change.restiffen)."""
     return restiffen(floored, p, np.maximum(p, floored.layout.lower))
-
-
-def _add(counts: dict, more: dict) -> dict:
-    return {name: counts.get(name, 0) + more.get(name, 0) for name in {**counts, **more}}
 
 
 def _floors_note(problem: Problem, stabilized: Problem, rounds: int, before: float, after: float) -> str:
