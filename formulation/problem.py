@@ -20,7 +20,8 @@ import scipy.sparse as sp
 
 from sagfree.linalg.band import add_vertex_blocks, lower_band, principal_band, principal_band_gather
 from sagfree.linalg.eigen import projected_eigenpair, scaled_block_eigenpair, smallest_eigenpair, start_vector
-from sagfree.linalg.timing import MODEL, timed
+from sagfree.linalg import timing
+from sagfree.linalg.timing import LINEAR_ALGEBRA, MODEL, timed
 
 from . import at_rest, dofs
 from .curvature import check_variant
@@ -204,7 +205,23 @@ class Problem:
         few of its natural periods and no nearby model of the same strand loses its stability."""
         if self.min_eigenvalue is not None:
             return float(self.min_eigenvalue)
-        return STABILITY_FRACTION * self.stability(self.p0)
+        return STABILITY_FRACTION * self.unstressed_stability()
+
+    def unstressed_stability(self) -> float:
+        """``stability(p0)``, the unstressed strand's smallest eigenvalue (s^-2) that sets
+        ``stability_margin``: where the stencils are compiled, the compiled call of every other p
+        (at_rest.stability), which asc's compiled solve of a strand held by its root alone
+        (frontend.whole_solve) also makes, so that both decide on the same margin; the numpy path
+        (``stability``) sums the unstressed vertex Hessians instead, the same to rounding."""
+        kernels = self.stability_kernels
+        if kernels is None or timing.CLOCK is None:
+            return self.stability(self.p0)
+        p0 = self.layout.p0.copy()  # writable, as the compiled callers pass it (read-only: a second compile)
+        seconds = np.zeros(2)
+        value = at_rest.stability(p0, *kernels, *timing.CLOCK, seconds)[0]
+        timing.add(MODEL, seconds[0])
+        timing.add(LINEAR_ALGEBRA, seconds[1])
+        return float(value)
 
     def meets_margin(self, p) -> bool:
         """``stability(p) >= stability_margin`` at q*, deciding without the margin's own eigenvalue
@@ -225,15 +242,23 @@ class Problem:
         """v^T H(p0) v at q*, summed over the stencils without assembling H (half the band's cost;
         dE/dk = 0 at p0, so ``_unstressed_vertex_forms`` applies); one compiled call
         (at_rest.unstressed_form) where the stencils are compiled."""
-        compiled = self._compiled_at_rest
-        hessians = (self.edge_functions.hessian, self.vertex_fixed_functions.hessian)
-        if compiled is not None and all(function.compiled for function in hessians):
-            inputs = compiled[0]  # slots, edge q and geometry, kinematics, vertex geometry, dk/dy: its arguments
-            return at_rest.unstressed_form(np.ascontiguousarray(v, dtype=float), self.layout.p0, *inputs,
-                                           self.edge_dofs, self.vertex_dofs, *(f.address for f in hessians))
+        arguments = self.unstressed_form_kernel
+        if arguments is not None:
+            return at_rest.unstressed_form(np.ascontiguousarray(v, dtype=float), *arguments)
         edge, vertex = self.stencil_inputs(self.layout.p0, None, None)
         return float(self._edge_forms(v, edge[2]).sum()
                      + self._unstressed_vertex_forms(self._kinematics_motion(v), vertex[3]).sum())
+
+    @functools.cached_property
+    def unstressed_form_kernel(self):
+        """at_rest.unstressed_form's arguments after v (p0, the stencils' inputs at q*, their DOFs and
+        the Hessian drivers), or None where those Hessians are not compiled."""
+        compiled = self._compiled_at_rest
+        hessians = (self.edge_functions.hessian, self.vertex_fixed_functions.hessian)
+        if compiled is None or not all(function.compiled for function in hessians):
+            return None
+        inputs = compiled[0]  # slots, edge q and geometry, kinematics, vertex geometry, dk/dy: its arguments
+        return (self.layout.p0, *inputs, self.edge_dofs, self.vertex_dofs, *(f.address for f in hessians))
 
     def _edge_forms(self, v, edge_physical) -> np.ndarray:
         """v_s^T H_s v_s per edge stencil at q* (H_s its d2E/dy2 with the physical parameters given)."""

@@ -40,7 +40,8 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     |c|_inf <= tol is confirmed at once by the KKT distance (below), before any multiplier
     estimate or outer iteration (``outer`` = 0): for a root-held groom strand that check is
     usually all that is left of its solve, and the start, the check and its Result's stability run
-    as one compiled call (solvers.confirmed_start; the Python steps where it does not apply). Where
+    as one compiled call (solvers.confirmed_start; the Python steps where it does not apply; the
+    front end's solve makes that call and the stabilization's rounds one, frontend.whole_solve). Where
     the check fails, the outer loop polishes. With bodies,
     from p0: the same step with the supports (clipped at zero where it pulled) left the rest shape
     to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
@@ -257,6 +258,13 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
                                message=f"{result.message}; from {then} too: {retry.message}")
 
 
+def zero_counts() -> dict[str, int]:
+    """asc's Result.iterations before a solve: every kind it counts, at zero, in its order."""
+    return dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, active_set=0, interior=0,
+                factorizations=0, factored_rows=0, line_search=0, corrected=0, sqp=0, tightened=0, least_residual=0,
+                newton_sqp=0)
+
+
 def _other_start(problem: Problem) -> str | None:
     """The start a default solve (start "auto") that ended max_iterations tries next: p0 after the
     linear start, the linear start after p0 where it applies, else None."""
@@ -289,9 +297,7 @@ def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: floa
     history: list[float] = []
     lower, upper = problem.layout.lower, problem.layout.upper
     model = _Model(problem)
-    counts = dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, active_set=0, interior=0,
-                  factorizations=0, factored_rows=0, line_search=0, corrected=0, sqp=0, tightened=0, least_residual=0,
-                  newton_sqp=0)
+    counts = zero_counts()
     attempts = feasible_rounds = 0
     # the start, its KKT distance and its Result's stability (whose seconds make_result's time
     # leaves out) from one compiled call (solvers.confirmed_start)

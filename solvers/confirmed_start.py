@@ -16,7 +16,8 @@ stabilization's landings) the least rest change. The stability is the Result's
 measurement, not the solve's: its seconds are returned for solve_alm to leave out of
 Result.time. Where the path does not apply (no compiled stencils, bodies, another attachment, a
 rest system that is not square or singular, a box that admits no multiplier) the call returns
-None and solve_alm takes its Python path.
+None and solve_alm takes its Python path. Its kernel (``confirmed_kernel``) is also the first part
+of the front end's whole solve of such a strand, stabilization included (frontend.whole_solve).
 """
 from __future__ import annotations
 
@@ -68,7 +69,7 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
     layout = problem.layout
     rate, multiplier, bend, rest = statics_indices(problem)
     seconds, violations = np.zeros(3), np.full(2, np.nan)
-    outcome, change, p, f0, values0, f, values, distance, eigenvalue, mode = _confirmed(
+    outcome, change, p, f0, values0, f, values, distance, eigenvalue, mode = confirmed_kernel(
         forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
         layout.weights, layout.lower, layout.upper, rate, multiplier, bend, rest, problem.edge_lengths, position,
         np.empty(0) if known is None else known, lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK,
@@ -93,8 +94,10 @@ def compiled_start_inputs(problem: Problem):
     indices, its band order) for a compiled confirmed start of ``problem``, or None where there is
     none: stencils or stability not compiled, no process clock, statics_start does not apply, or
     the saddle system is not a band (Problem.at_rest_kernels, band_order)."""
+    if timing.CLOCK is None or not applies(problem):
+        return None
     kernels = problem.at_rest_kernels
-    if kernels is None or problem.stability_kernels is None or timing.CLOCK is None or not applies(problem):
+    if kernels is None or problem.stability_kernels is None:
         return None
     forces_args, jacobian_args, free, row_scale, structure = kernels
     position = band_order(structure[0], structure[1], free.size)
@@ -103,13 +106,13 @@ def compiled_start_inputs(problem: Problem):
     return forces_args, jacobian_args, free, row_scale, structure[0], structure[1], position
 
 
-#: _confirmed's outcomes: the start and its distance; no optimum (a singular rest system, or a box
+#: confirmed_kernel's outcomes: the start and its distance; no optimum (a singular rest system, or a box
 #: that admits no multiplier: the Python path says which); the rest system is not square
 CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
 
 
 @numba.njit(cache=True)
-def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
+def confirmed_kernel(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
                multiplier, bend, rest, lengths, position, known, dgbtrf, dgbtrs, near, clock, clock_id, tol, kkt_tol,
                hessian_args, eigen_args, scale, free_index, seconds, violations):  # pragma: no cover - compiled
     """(outcome, change, p, f(p0), dc/dp(p0) values, f(p), dc/dp(p) values, KKT distance,
@@ -158,9 +161,9 @@ def _confirmed(forces_args, jacobian_args, free, row_scale, indptr, indices, res
 def confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
                       multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
                       clock_id, stability, seconds, violations):  # pragma: no cover - compiled
-    """_confirmed from the least rest change on: the optimum it fixes, c and dc/dp there (|c|_inf
+    """confirmed_kernel from the least rest change on: the optimum it fixes, c and dc/dp there (|c|_inf
     into violations[1]), the KKT distance and the stability (f0, values0: passed through;
-    stability: _confirmed's arguments of the stability evaluation). Also the stabilization's
+    stability: confirmed_kernel's arguments of the stability evaluation). Also the stabilization's
     compiled re-solves (frontend.floor_steps.stabilization_rounds)."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)

@@ -18,7 +18,7 @@ from sagfree.solvers import confirmed_start, interior_point, outer_loop
 def holding(kernels):
     return [k.__name__ for k in kernels if any(r.library._shared_module is not None for r in k.overloads.values())]
 
-kernels = (confirmed_start._confirmed, outer_loop._outer, interior_point.interior_point, _shortest_edge)
+kernels = (confirmed_start.confirmed_kernel, outer_loop._outer, interior_point.interior_point, _shortest_edge)
 warm.release_linking_ir = lambda: 0          # keep the IR through the warm-up: the reference solves
 warm.warm_up("asc")
 problems = [sagfree.Problem(strand) for strand in groom(3, 30, seed=2)]
@@ -47,6 +47,6 @@ def test_released_kernels_give_the_same_bits_and_still_link(tmp_path):
     run = subprocess.run([sys.executable, "-c", _SCRIPT], capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]
     report = json.loads(run.stdout.strip().splitlines()[-1])
-    assert report["held"] == ["_confirmed", "_outer", "interior_point", "_shortest_edge"]
+    assert report["held"] == ["confirmed_kernel", "_outer", "interior_point", "_shortest_edge"]
     assert report["released"] >= 10 and report["left"] == []
     assert report["same"] and report["linked"]

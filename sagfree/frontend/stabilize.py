@@ -27,10 +27,11 @@ make its optimum stable. They are found by a cutting-plane loop on the bare prob
    strand held by its root alone the step and its checks are one compiled call (floor_steps);
 3. solve the floored problem from the solver's own start again, and repeat.
 
-For a strand held by its root alone, solved by asc, the whole loop is one compiled call
-(floor_steps.stabilization_rounds: each re-solve is asc's confirmed start), with the Python loop's
-floors, solutions and messages bit for bit; where a re-solve needs asc's outer loop, the loop runs
-in Python (``floors_loop``).
+For a strand held by its root alone, solved by asc, the solve, the margin test and the whole loop
+are one compiled call (frontend.whole_solve: asc's confirmed start, then
+floor_steps.stabilization_rounds, each re-solve again a confirmed start), with the Python loop's
+floors, solutions and messages bit for bit; where a solve needs asc's outer loop, the strand takes
+the usual path, and its loop runs in Python (``floors_loop``) around asc's compiled solves.
 
 The floors of a strand must not depend on the solver, or solvers would be compared on different
 problems: the floored problems are nonconvex like the bare one, and two solvers' intermediate optima
@@ -58,11 +59,13 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffen
 from sagfree.linalg import timing
 from sagfree.solvers import solve_alm
-from sagfree.solvers.alm import converged_message, linear_start, start_violation
+from sagfree.solvers.alm import converged_message, linear_start, start_violation, zero_counts
+from sagfree.solvers.mprgp import PRECONDITIONERS
 from sagfree.solvers.statics_start import square_rest_system
 
 from .best_effort import with_least_sag
 from .floor_steps import checked_floors, raised_floors, stabilization_rounds
+from .whole_solve import whole_solve
 
 #: Rounds of floors raised and solves repeated before giving up (status max_iterations).
 MAX_ROUNDS = 10
@@ -93,6 +96,10 @@ def solve_stabilized(function, problem: Problem, options: dict) -> Result:
 
 def _stabilized(function, problem: Problem, options: dict) -> Result:
     clock = time.perf_counter()
+    if function is solve_alm:
+        whole = _whole_solve(problem, options, clock)
+        if whole is not None:
+            return whole
     result = function(problem, **options)
     stiffness = problem.layout.concatenated_blocks((*STIFFNESS_BLOCKS, STRAND_BLOCK))[1]
     if (not problem.stabilize or not stiffness.size or result.status != "converged"
@@ -116,9 +123,43 @@ def _stabilized(function, problem: Problem, options: dict) -> Result:
     history += result.history
     counts["stabilization"] = rounds
     status, message = verdict if verdict else (result.status, result.message)
-    message += _floors_note(problem, floored, rounds, first_objective, result.objective)
+    message += _floors_note(problem, floored.layout.lower, rounds, first_objective, result.objective)
     return make_result(problem, result.p, result.solver, status, message, counts,
                        time.perf_counter() - clock - setup, history, floored.layout.lower.copy(), setup_time=setup)
+
+
+def _whole_solve(problem: Problem, options: dict, clock: float) -> Result | None:
+    """The Result of ``_stabilized`` with asc from one compiled call (frontend.whole_solve: a strand
+    held by its root alone whose solves are confirmed starts), the same as the two calls' (solve_alm's
+    confirmed start, then _compiled_rounds) but for the time; None where that path does not hold
+    (asc's options then decide: another start, or an unknown preconditioner it refuses)."""
+    if (options.get("p_start") is not None or options.get("start", "auto") != "auto"
+            or options.get("preconditioner", "cholesky") not in PRECONDITIONERS):
+        return None
+    tol, kkt_tol = options.get("tol", TOL), options.get("kkt_tol", KKT_TOL)
+    stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    found = whole_solve(problem, stiffness, OVERSHOOT, RELEVANT, FLOOR_STEPS, MAX_ROUNDS, tol, kkt_tol)
+    if found is None:
+        return None
+    counts = zero_counts()
+    message = converged_message(found.first_violation, found.first_distance, tol, kkt_tol, 0, 0)
+    history = [found.start_violation, found.first_violation]
+    if found.ending == "stable" and not found.rounds:  # solve_alm's Result: its stability is the Result's measurement
+        return make_result(problem, found.first, "asc", "converged", message, counts,
+                           time.perf_counter() - clock - found.stability_seconds, history)
+    # as _stabilized after _compiled_rounds
+    last_message, objective = message, problem.objective(found.first)
+    if found.rounds:
+        last_message = converged_message(found.violation, found.distance, tol, kkt_tol, 0, 0)
+        history += [found.start_violation, found.violation]
+    else:
+        history += history
+    counts["stabilization"] = found.rounds
+    status, message = (("converged", last_message) if found.ending == "stable"
+                       else _verdict(found.ending, last_message, found.value, found.margin))
+    message += _floors_note(problem, found.lower, found.rounds, objective, problem.objective(found.p))
+    return make_result(problem, found.p, "asc", status, message, counts, time.perf_counter() - clock, history,
+                       found.lower.copy())
 
 
 class LastSolve(NamedTuple):
@@ -284,9 +325,9 @@ def _restiffened(floored: Problem, p: np.ndarray) -> np.ndarray:
     return restiffen(floored, p, np.maximum(p, floored.layout.lower))
 
 
-def _floors_note(problem: Problem, stabilized: Problem, rounds: int, before: float, after: float) -> str:
-    """Where the stiffness floors rose, and what they cost in R."""
-    raised = np.flatnonzero(stabilized.layout.lower > problem.layout.lower)
+def _floors_note(problem: Problem, floors: np.ndarray, rounds: int, before: float, after: float) -> str:
+    """Where the stiffness floors (the stabilized problem's lower bounds) rose, and what they cost in R."""
+    raised = np.flatnonzero(floors > problem.layout.lower)
     places = "; ".join(f"{block} at {'strand' if block == STRAND_BLOCK else number_ranges(numbers)}"
                        for block, numbers in problem.layout.element_numbers(raised).items())
     change = (after - before) / before if before else np.inf

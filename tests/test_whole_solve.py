@@ -1,0 +1,78 @@
+"""asc's whole solve of a strand held by its root alone, stabilization included, is one compiled call
+(frontend.whole_solve) whose Result is the two calls' (solve_alm's confirmed start, then the
+compiled rounds of frontend.stabilize) bit for bit, and which leaves every other strand alone."""
+import numpy as np
+import pytest
+
+import sagfree
+import sagfree.frontend.stabilize as stabilize
+from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
+from sagfree.formulation.problem import Problem
+from sagfree.frontend.stabilize import FLOOR_STEPS, MAX_ROUNDS, OVERSHOOT, RELEVANT
+from sagfree.frontend.whole_solve import whole_solve
+
+FIELDS = ("status", "message", "min_eigenvalue", "iterations", "history", "objective", "residual_inf", "max_force")
+
+
+def same_results(a, b) -> bool:
+    floors = (a.floors is None and b.floors is None) or np.array_equal(a.floors, b.floors)
+    return floors and np.array_equal(a.p, b.p) and all(getattr(a, name) == getattr(b, name) for name in FIELDS)
+
+
+def counted(monkeypatch) -> list:
+    """whole_solve's answers (None where it declined) in the solves that follow."""
+    answers = []
+
+    def recording(*args, **kwargs):
+        answers.append(whole_solve(*args, **kwargs))
+        return answers[-1]
+
+    monkeypatch.setattr(stabilize, "whole_solve", recording)
+    return answers
+
+
+@pytest.mark.parametrize("options", [{}, {"stabilize": False}, {"min_eigenvalue": 50.0}])
+def test_the_whole_solve_is_the_two_calls_result(options, monkeypatch):
+    strands = sagfree.scenes.groom(40, 60, seed=0)
+    answers = counted(monkeypatch)
+    whole = [sagfree.solve(Problem(strand, **options)) for strand in strands]
+    monkeypatch.setattr(stabilize, "whole_solve", lambda *args, **kwargs: None)
+    two_calls = [sagfree.solve(Problem(strand, **options)) for strand in strands]
+    assert all(same_results(a, b) for a, b in zip(whole, two_calls))
+    assert sum(answer is not None for answer in answers) >= 38  # the path holds for nearly all of them
+    assert all(r.status == "converged" for r in whole)
+    if options.get("stabilize", True):
+        assert sum(r.iterations.get("stabilization", 0) > 0 for r in whole) >= 3 and all(r.stable for r in whole)
+
+
+def test_the_whole_solve_computes_the_margin_the_problem_does():
+    """Where the Rayleigh bound cannot decide, the margin is the unstressed eigenvalue's fraction, the
+    same number Problem.stability_margin computes (and the margin the rounds aim at)."""
+    for strand in sagfree.scenes.groom(40, 60, seed=0):
+        problem = Problem(strand)
+        stiffness = problem.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+        found = whole_solve(problem, stiffness, OVERSHOOT, RELEVANT, FLOOR_STEPS, MAX_ROUNDS, 1e-8, 1e-5)
+        if found is not None and found.rounds:
+            assert found.margin == Problem(strand).stability_margin
+            assert found.margin == pytest.approx(0.1 * problem.stability(problem.p0), rel=1e-6)  # the eigensolver's tolerance
+            assert problem.stability(found.p) == found.value >= found.margin
+            return
+    pytest.fail("no strand was stabilized")
+
+
+def test_the_whole_solve_leaves_other_strands_to_the_usual_path(monkeypatch):
+    """A pinned tip, pins, or a start that needs asc's outer loop: the call declines before anything
+    is kept, and the strand is solved the usual way."""
+    strand = sagfree.scenes.groom(1, 60, seed=0)[0]
+    pinned = [strand.attached(tip="pinned"), strand.attached(pins=[30])]
+    answers = counted(monkeypatch)
+    for held in pinned:
+        result = sagfree.solve(Problem(held))
+        assert result.status == "converged" and result.iterations["gauss_newton"] > 0
+    assert answers == [None, None]
+    loose = Problem(strand)
+    stiffness = loose.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
+    assert whole_solve(loose, stiffness, OVERSHOOT, RELEVANT, FLOOR_STEPS, MAX_ROUNDS, 1e-30, 1e-5) is None
+    assert loose.remembered("least rest change") is None  # nothing kept: the usual path starts afresh
+    result = sagfree.solve(loose, tol=1e-30)
+    assert result.iterations["outer"] > 0
