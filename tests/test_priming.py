@@ -1,4 +1,9 @@
-"""A machine's first compile runs in a child process, once per code (frontend.priming)."""
+"""A machine's first compile runs in child processes, once per code (frontend.priming)."""
+import os
+import pickle
+import subprocess
+import sys
+
 import pytest
 
 from sagfree.frontend import priming, warm
@@ -73,12 +78,37 @@ def test_a_process_first_warm_up_primes_before_it_warms_in_place(stamps, monkeyp
     calls = []
 
     def child(command, **kwargs):
-        calls.append(kwargs["env"].get(priming.CHILD))
+        calls.append((kwargs["env"].get(priming.CHILD), command[-1]))
         return priming.subprocess.CompletedProcess(command, 0)
 
     monkeypatch.setattr(priming.subprocess, "run", child)
     monkeypatch.setattr(warm, "_WARM", set())
-    assert warm.warm_up("naive") > 0 and calls == ["1"]
+    both = [("1", priming._CHILD_CODE), ("1", priming._PATHS_CODE)]
+    assert warm.warm_up("naive") > 0 and sorted(calls) == sorted(both)
     assert priming.stamp_path().exists()
     assert warm.warm_up("naive") == 0.0 and warm.warm_up("asc", None, {"curvature": "2d-average"}) > 0
-    assert calls == ["1"]
+    assert sorted(calls) == sorted(both)
+
+
+def test_the_second_child_runs_asc_warm_paths(stamps):
+    """What the first child's success does not show: the second child's own code runs."""
+    arguments = pickle.dumps((sys.path, ("naive", None, {})))
+    done = subprocess.run([sys.executable, "-c", priming._PATHS_CODE], input=arguments, cwd=stamps,
+                          env={**os.environ, priming.CHILD: "1"}, capture_output=True, check=False)
+    assert done.returncode == 0, done.stderr.decode()[-2000:]
+
+
+def test_the_two_children_share_the_whole_warm_up(monkeypatch):
+    """The first child's warm-up without the warm paths and the second child's paths are, together,
+    the solves of one whole warm-up: the split loses none."""
+    solved = []
+    monkeypatch.setattr(warm, "solve_stabilized", lambda function, problem, options: solved.append(options))
+    monkeypatch.setattr(warm, "primed_in_child", lambda *args: False)
+    monkeypatch.setattr(warm, "_WARM", set())
+    warm.warm_up("asc")
+    whole, solved[:] = list(solved), []
+    monkeypatch.setattr(warm, "_WARM", set())
+    warm.warm_up("asc", paths=False)
+    first, solved[:] = list(solved), []
+    warm.warm_paths("asc")
+    assert first and solved and sorted(map(repr, first + solved)) == sorted(map(repr, whole))

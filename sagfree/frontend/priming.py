@@ -7,8 +7,13 @@ that process, and each worker's resident set counts the parent's pages again, so
 the 1 GB goal of a 10K-strand groom that later runs met (benchmarks/RESULTS.md). So before a
 process's first warm-up, ``primed_in_child`` runs asc's warm-up (whose kernels every solver's
 stabilization uses) and the solver's in a fresh interpreter, which compiles and stores the kernels
-and then exits, and the process itself loads them from the cache. What tells that this machine's
-caches already hold them is a stamp file under ``$SAGFREE_CACHE/primed``, named by a digest of what
+and then exits, and the process itself loads them from the cache. Two children compile at once,
+each its own share of the kernels: the second asc's warm paths (frontend.warm.warm_paths: the
+compiled outer loop, which nothing else calls), the first all the rest and the forward check's (on
+a 2-core machine a first warm-up took 119 s, against 176 s with one child, benchmarks/RESULTS.md).
+The first child's exit status decides: where the second fails, the process compiles what it
+missed in place, as without priming. What tells that this machine's caches already hold them is a
+stamp file under ``$SAGFREE_CACHE/primed``, named by a digest of what
 the cached code depends on (``code_digest``: the package's sources, numba, Python, the host CPU and
 the numba cache directory): a new digest (an upgrade, an edit, another install) primes again, once.
 Once per code, not per solver and options: a child costs a few seconds even when it finds
@@ -29,6 +34,7 @@ import platform
 import re
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numba
@@ -42,16 +48,20 @@ _SOURCE_PACKAGES = ("sagfree", "sagfree.formulation", "sagfree.solvers", "sagfre
                     "sagfree.contract", "sagfree.frontend", "sagfree.linalg", "sagfree.scenes")
 #: the names of a Python interpreter's executable (python, python3.11, pypy3, python.exe)
 _INTERPRETER = re.compile(r"(python|pypy)[\d.]*(\.exe)?", re.IGNORECASE)
-#: the child takes this process's import path, then warms asc and the solver up (arguments pickled on stdin)
-_CHILD_CODE = ("import pickle, sys; path, (solver, options, model) = pickle.loads(sys.stdin.buffer.read()); "
-               "sys.path[:] = path; from sagfree.frontend.warm import warm_up; warm_up('asc', None, model); "
-               "warm_up(solver, options, model)")
+#: each child takes this process's import path and the arguments (pickled on stdin), then compiles its share
+_CHILD_START = ("import pickle, sys; path, (solver, options, model) = pickle.loads(sys.stdin.buffer.read()); "
+                "sys.path[:] = path; from sagfree.frontend import warm; ")
+#: the first child: asc's warm-up but its warm paths, the solver's, the forward check's
+_CHILD_CODE = _CHILD_START + ("warm.warm_up('asc', None, model, paths=False); warm.warm_up(solver, options, model); "
+                             "warm.warm_check(model)")
+#: the second child, at the same time: asc's warm paths (its compiled outer loop)
+_PATHS_CODE = _CHILD_START + "warm.warm_paths('asc', None, model)"
 
 
 def primed_in_child(solver: str, solver_options: dict | None, problem_options: dict | None) -> bool:
     """Run asc's and ``solver``'s warm-up (``warm_up(solver, solver_options, problem_options)``) in
-    a child interpreter unless the stamp says this machine has done so for this code; returns
-    whether a child ran and succeeded. Never raises."""
+    two child interpreters at once (module docstring) unless the stamp says this machine has done
+    so for this code; returns whether the first child ran and succeeded. Never raises."""
     if os.environ.get(CHILD) or not _INTERPRETER.fullmatch(Path(sys.executable or "").name):
         return False
     try:
@@ -64,9 +74,17 @@ def primed_in_child(solver: str, solver_options: dict | None, problem_options: d
         return False
     # in the stamp's folder, with this process's import path: from a checkout's root, `python -c`
     # would put the root first and import its sagfree/ folder (the source tree, not the install)
-    done = subprocess.run([sys.executable, "-c", _CHILD_CODE], input=arguments, env={**os.environ, CHILD: "1"},
-                          cwd=stamp.parent, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
-    if done.returncode != 0:
+    def child(code: str) -> int:
+        return subprocess.run([sys.executable, "-c", code], input=arguments, env={**os.environ, CHILD: "1"},
+                              cwd=stamp.parent, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              check=False).returncode
+
+    try:
+        with ThreadPoolExecutor(2) as pool:  # both children at once (module docstring)
+            first, _ = pool.map(child, (_CHILD_CODE, _PATHS_CODE))
+    except OSError:  # no interpreter to start: warm up in place
+        return False
+    if first != 0:
         return False
     try:
         stamp.write_text(f"{solver}\n")

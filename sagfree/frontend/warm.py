@@ -144,10 +144,12 @@ def _quietly(function, *args, **kwargs) -> None:
         pass
 
 
-def warm_up(solver: str, solver_options: dict | None = None, problem_options: dict | None = None) -> float:
+def warm_up(solver: str, solver_options: dict | None = None, problem_options: dict | None = None, *,
+            paths: bool = True) -> float:
     """Solve a small strand with ``solver`` once per process and model options, untimed (module
-    docstring); returns the seconds it took (0 if already warm). Never raises: a strand the real
-    batch cannot solve reports its own error."""
+    docstring); returns the seconds it took (0 if already warm). ``paths=False`` leaves out the
+    solver's warm paths (priming's first child: its sibling runs them at the same time,
+    ``warm_paths``). Never raises: a strand the real batch cannot solve reports its own error."""
     key = _key(solver, problem_options)
     if key in _WARM:
         return 0.0
@@ -157,9 +159,21 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     _quietly(interior_point.compile_kernels)
     _quietly(cholesky.compile_kernels)
     entry = solver_entry(solver)
-    _quietly(_solve_warm_strand, entry, solver_options, problem_options or {})
+    _quietly(_solve_warm_strand, entry, solver_options, problem_options or {}, paths)
     release_linking_ir()  # the loaded kernels' IR, which only compiles of their callers read
     return time.perf_counter() - start
+
+
+def warm_paths(solver: str, solver_options: dict | None = None, problem_options: dict | None = None) -> None:
+    """The warm-up strand solved along the solver's warm paths alone (SolverEntry.warm_paths), the
+    part of ``warm_up`` that priming's second child runs while the first runs the rest: for asc
+    the compiled outer loop, the largest group of kernels that nothing else calls. Raises what the
+    solve raises (the child's exit status is all that reads it)."""
+    entry = solver_entry(solver)
+    problem = _warm_strand(problem_options or {})
+    options = {**_structure_options(solver_options), **entry.warm_options}
+    for path in entry.warm_paths:
+        solve_stabilized(entry.function, problem, {**options, **path})
 
 
 def warm_check(problem_options: dict | None = None) -> float:
@@ -183,8 +197,8 @@ def _check_warm_strand(problem_options: dict) -> None:
     sag_check(problem, problem.p0, steps=2)
 
 
-def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict) -> None:
-    """The warm-up strand solved, then its constraints' curvature evaluated once (asc's Newton-SQP,
+def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict, paths: bool = True) -> None:
+    """The warm-up strand solved (along the solver's warm paths too, with ``paths``), then its constraints' curvature evaluated once (asc's Newton-SQP,
     for held tips and long strands, builds those stencils on first use, inside the first such
     strand's Result.time otherwise), the infeasibility certificate checked (solvers.statics_start:
     only strands that fail their start reach it) and a stabilization round taken from its optimum
@@ -192,7 +206,7 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     the first stabilized strand of each worker of a batch)."""
     problem = _warm_strand(problem_options)
     options = {**_structure_options(solver_options), **entry.warm_options}
-    for path in ({}, *entry.warm_paths):
+    for path in ({}, *(entry.warm_paths if paths else ())):
         solve_stabilized(entry.function, problem, {**options, **path})
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
     change = problem.remembered("least rest change")
