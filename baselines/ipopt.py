@@ -40,6 +40,7 @@ import warnings
 import casadi as ca
 import numpy as np
 
+from sagfree.contract.feasibility import judged_tolerance, raised_note
 from sagfree.contract.optimality import KKT_TOL, TOL, kkt_optimality
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.compiled import compile_library, generated_c, start_compiling
@@ -190,9 +191,10 @@ def solve_ipopt(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, ma
     return_status = stats.get("return_status", "unknown")
     residual = float(np.abs(problem.residual(p)).max(initial=0.0))
     optimality = kkt_optimality(problem, p)
+    held = judged_tolerance(problem, p, residual, tol)
     status = RETURN_STATUS.get(return_status, "failed")
     if status in ("converged", "failed"):
-        status = "converged" if residual <= tol and optimality <= kkt_tol else "failed"
+        status = "converged" if residual <= held and optimality <= kkt_tol else "failed"
     counts = {
         "ipopt": int(stats.get("iter_count", 0)),
         "constraint_evaluations": int(stats.get("n_call_nlp_g", 0)),
@@ -200,7 +202,7 @@ def solve_ipopt(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, ma
         "hessian_evaluations": int(stats.get("n_call_nlp_hess_l", 0)),
     }
     message = (f"Ipopt: {return_status} after {counts['ipopt']} iterations; |c|_inf = {residual:.2e} "
-               f"(target {tol:g}), KKT distance {optimality:.2e} (target {kkt_tol:g})"
+               f"(target {held:g}), KKT distance {optimality:.2e} (target {kkt_tol:g})" + raised_note(tol, held)
                + (f"; x leaves the box by up to {outside:.1e} (rounding)" if outside > 0 else ""))
     history = [float(v) for v in stats.get("iterations", {}).get("inf_pr", [])]
     return make_result(problem, p, "ipopt", status, message, counts, time.perf_counter() - clock, history,

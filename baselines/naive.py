@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from sagfree.contract.feasibility import judged_tolerance, raised_note
 from sagfree.contract.optimality import KKT_TOL, TOL, kkt_optimality
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.problem import Problem
@@ -20,10 +21,12 @@ def solve_naive(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, ma
     start = time.perf_counter()
     p = problem.p0 if p_start is None else np.clip(np.asarray(p_start, dtype=float), problem.lower, problem.upper)
     residual = float(abs(problem.residual(p)).max(initial=0.0))
-    if residual <= tol and (distance := kkt_optimality(problem, p)) <= kkt_tol:
+    held = judged_tolerance(problem, p, residual, tol)
+    if residual <= held and (distance := kkt_optimality(problem, p)) <= kkt_tol:
         status = "converged"
-        message = f"already an equilibrium: |c|_inf = {residual:.2e}, KKT distance {distance:.2e}"
-    elif residual <= tol:
+        message = (f"already an equilibrium: |c|_inf = {residual:.2e}, KKT distance {distance:.2e}"
+                   + raised_note(tol, held))
+    elif residual <= held:
         status, message = "failed", f"in equilibrium but not optimal: KKT distance {distance:.2e} > {kkt_tol:g}"
     else:
         what = "naive parameters leave the gravity residual" if p_start is None else "p_start leaves the residual"

@@ -31,6 +31,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from sagfree.contract.feasibility import judged_tolerance, raised_note
 from sagfree.contract.optimality import KKT_TOL, TOL, gradient_scale, kkt_optimality
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.problem import Problem
@@ -147,10 +148,12 @@ def solve_osqp(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max
 
     while True:
         violation = history[-1]
-        optimality = kkt_optimality(problem, p) if violation <= tol else np.inf
-        if violation <= tol and optimality <= kkt_tol:
-            return finish("converged", f"|c|_inf = {violation:.2e} <= {tol:g} and KKT distance "
-                          f"{optimality:.2e} <= {kkt_tol:g} after {counts['sqp']} SQP iterations")
+        held = judged_tolerance(problem, p, violation, tol)
+        optimality = kkt_optimality(problem, p) if violation <= held else np.inf
+        if violation <= held and optimality <= kkt_tol:
+            return finish("converged", f"|c|_inf = {violation:.2e} <= {held:g} and KKT distance "
+                          f"{optimality:.2e} <= {kkt_tol:g} after {counts['sqp']} SQP iterations"
+                          + raised_note(tol, held))
         elapsed = time.perf_counter() - clock
         if counts["sqp"] >= max_iterations or elapsed >= max_seconds:
             limit = (f"{max_iterations} SQP iterations" if counts["sqp"] >= max_iterations

@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 
+from sagfree.contract.feasibility import judged_tolerance, raised_note
 from sagfree.contract.optimality import KKT_TOL, TOL, kkt_optimality
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation import dofs
@@ -137,10 +138,11 @@ def solve_penalty_gn(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TO
     residual = history[-1]
     violation = float(np.max(np.maximum(p - upper, 0.0) + np.maximum(lower - p, 0.0), initial=0.0))
     p = _to_caller_layout(problem, rest, p)
-    status = "converged" if residual <= tol and kkt_optimality(problem, p) <= kkt_tol else "failed"
+    held = judged_tolerance(problem, p, residual, tol)
+    status = "converged" if residual <= held and kkt_optimality(problem, p) <= kkt_tol else "failed"
     message = (f"penalty Gauss-Newton {reason} after {counts['gauss_newton']} iterations; "
-               f"|c|_inf = {residual:.3g}" + ("" if status == "converged" else
-                                              f" (target {tol:g}): the rest shape alone, with penalized "
+               f"|c|_inf = {residual:.3g}" + (raised_note(tol, held) if status == "converged" else
+                                              f" (target {held:g}): the rest shape alone, with penalized "
                                               "boxes, leaves this residual force or is not optimal")
                + f"; largest box violation {violation:.3g}")
     return make_result(problem, p, "penalty-gn", status, message, counts, time.perf_counter() - clock, history)

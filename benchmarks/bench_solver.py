@@ -5,7 +5,8 @@ size, and the preconditioner ablation.
                                       [--repeats 2] [--sizes 25,100,400,1000,2000] [--size-strands 10]
                                       [--pinned-strands 3] [--ablation 10]
 
-Prints three tables (and 2b), all measured in this run:
+Prints three tables (and 2b), all measured in this run; a count of 0 skips its table (``--strands 0
+--ablation 0 --sizes 3,5000,10000 --size-strands 3 --pinned-strands 0``: the size table alone):
 1. the whole groom (``groom(1900, 100, seed=0)``, element stiffness, default boxes, stability on) on
    all cores after a warm-up batch: wall time, strands converged and stable, the ratio to the
    predecessor paper's published 11.2 s for 1.9K strands x 100 vertices (measured there on a larger
@@ -193,22 +194,25 @@ def ablation_table(strands: int, vertices: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--strands", type=int, default=1900)
+    parser.add_argument("--strands", type=int, default=1900, help="groom strands of table 1 ('0' = skip)")
     parser.add_argument("--vertices", type=int, default=100)
     parser.add_argument("--jobs", type=int, default=os.cpu_count())
     parser.add_argument("--before", default=BEFORE, help="git revision to run side by side ('' = skip)")
     parser.add_argument("--repeats", type=int, default=2, help="alternating runs of each code in table 1")
     parser.add_argument("--sizes", default="25,100,400,1000,2000", help="strand sizes of table 2")
-    parser.add_argument("--size-strands", type=int, default=10, help="strands per size in table 2")
+    parser.add_argument("--size-strands", type=int, default=10, help="strands per size in table 2 ('0' = skip)")
     parser.add_argument("--pinned-strands", type=int, default=3, help="strands per size in table 2b ('0' = skip)")
-    parser.add_argument("--ablation", type=int, default=10, help="strands in table 3")
+    parser.add_argument("--ablation", type=int, default=10, help="strands in table 3 ('0' = skip)")
     args = parser.parse_args()
-    groom_table(args.strands, args.vertices, args.jobs, args.before, args.repeats)
+    if args.strands:
+        groom_table(args.strands, args.vertices, args.jobs, args.before, args.repeats)
     sizes = [int(n) for n in args.sizes.split(",")]
-    size_table(sizes, args.size_strands)
+    if args.size_strands:
+        size_table(sizes, args.size_strands)
     if args.pinned_strands:
         size_table(sizes, args.pinned_strands, tip="pinned", title="2b.")
-    ablation_table(args.ablation, args.vertices)
+    if args.ablation:
+        ablation_table(args.ablation, args.vertices)
 
 
 if __name__ == "__main__":

@@ -326,10 +326,13 @@ def _restiffened(floored: Problem, p: np.ndarray) -> np.ndarray:
 
 
 def _floors_note(problem: Problem, floors: np.ndarray, rounds: int, before: float, after: float) -> str:
-    """Where the stiffness floors (the stabilized problem's lower bounds) rose, and what they cost in R."""
+    """Where the stiffness floors (the stabilized problem's lower bounds) rose, and what they cost in
+    R: relative, or from what to what where the bare optimum's R is below 1% of it (a strand held
+    at both ends can rest nearly as groomed, R 1e-12, and a percentage of that says nothing)."""
     raised = np.flatnonzero(floors > problem.layout.lower)
     places = "; ".join(f"{block} at {'strand' if block == STRAND_BLOCK else number_ranges(numbers)}"
                        for block, numbers in problem.layout.element_numbers(raised).items())
-    change = (after - before) / before if before else np.inf
+    cost = f"R {(after - before) / before:+.2%}" if before >= 0.01 * after and before else \
+        f"R {before:.3g} -> {after:.3g}"
     return (f"; stabilized in {rounds} round{'s' if rounds != 1 else ''}: stiffness floors raised "
-            f"({places or 'none'}), R {change:+.2%}")
+            f"({places or 'none'}), {cost}")
