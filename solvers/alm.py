@@ -80,9 +80,9 @@ Converged: |c|_inf <= tol and pi of the gradient of the Lagrangian R + lam^T c i
     (gradient_tol), confirmed by the KKT distance of contract.optimality <= kkt_tol, the measure
     every solver's status uses. Past its confirmed start, the solve holds c to tol or, where
     larger, to c's rounding level at the point it starts from (contract.feasibility: 4 x 1.4e-8 on
-    a 5000-vertex strand), which its message then says. Where pi is small but the distance is not (a flat valley along the
-    bilinear fibres stiffness x (kbar - kappa*)), the target is tightened 1000-fold (counted as
-    ``tightened``) and the outer loop goes on.
+    a 5000-vertex strand), which its message then says. Where pi is small but the distance is not
+    (a flat valley along the bilinear fibres stiffness x (kbar - kappa*)), the target is tightened
+    1000-fold (counted as ``tightened``) and the outer loop goes on.
 Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixed by statics (a tip
     or a pin held, so the supports' reactions are unknowns too), the feasible set's curvature is what
     the optimum trades along, and the inner solves crawl at a feasible p (5000 steps left the cable

@@ -6,13 +6,12 @@ p_j by its rounding, eps |p_j|, moves c_r by up to
 
     rounding_r(p) = eps sum_j |dc_r/dp_j| |p_j|,
 
-and the forces behind c grow with the number of vertices n while each vertex's weight, the row
-scale, shrinks as 1/n: max_r rounding_r grows as n^2 (on root-held groom strands, at the optimum:
-5e-12 at 100 vertices, 2.2e-9 at 2000, 1.4e-8 at 5000, 3.6e-8 at 8000). Where ROUNDING_MULTIPLE times
-it exceeds ``tol``, that is the tolerance: with tol = 1e-8 asc crawled 60 outer iterations (58 s)
-around |c|_inf = 1.5e-8 on a 5000-vertex groom strand whose exact optimum it had started from (|c|_inf
-1.2e-8 there, one ulp of p moving c by 2e-8). Every solver's status applies the same rule, and its
-message says when the tolerance was raised.
+and c's rows are forces over each vertex's weight, which shrinks as the vertices multiply: on
+root-held groom strands max_r rounding_r grows as n^2 (5e-12 at 100 vertices, 2.2e-9 at 2000,
+1.4e-8 at 5000). Where ROUNDING_MULTIPLE times it exceeds ``tol``, that is the tolerance: with tol =
+1e-8 asc crawled 60 outer iterations (58 s) around |c|_inf = 1.5e-8 on a 5000-vertex groom strand
+whose exact optimum it had started from (benchmarks/RESULTS.md, 2026-12-05). Every solver's status
+applies the same rule, and its message says when the tolerance was raised.
 """
 from __future__ import annotations
 

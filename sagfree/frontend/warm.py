@@ -198,12 +198,13 @@ def _check_warm_strand(problem_options: dict) -> None:
 
 
 def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict, paths: bool = True) -> None:
-    """The warm-up strand solved (along the solver's warm paths too, with ``paths``), then its constraints' curvature evaluated once (asc's Newton-SQP,
-    for held tips and long strands, builds those stencils on first use, inside the first such
-    strand's Result.time otherwise), the infeasibility certificate checked (solvers.statics_start:
-    only strands that fail their start reach it) and a stabilization round taken from its optimum
-    (the warm-up strand is stable, and the round's kernels, floor_steps, otherwise compile or load in
-    the first stabilized strand of each worker of a batch)."""
+    """The warm-up strand solved (along the solver's warm paths too, with ``paths``), then its
+    constraints' curvature evaluated once (asc's Newton-SQP, for held tips and long strands, builds
+    those stencils on first use, inside the first such strand's Result.time otherwise), the
+    infeasibility certificate checked (solvers.statics_start: only strands that fail their start
+    reach it) and a stabilization round taken from its optimum (the warm-up strand is stable, and
+    the round's kernels, floor_steps, otherwise compile or load in the first stabilized strand of
+    each worker of a batch)."""
     problem = _warm_strand(problem_options)
     options = {**_structure_options(solver_options), **entry.warm_options}
     for path in ({}, *(entry.warm_paths if paths else ())):
