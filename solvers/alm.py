@@ -146,8 +146,14 @@ Infeasible: for a strand held by its root alone whose rest system is square, the
     the same forces, the stiffest the boxes allow (rest_change.stiffest): at equal residual force
     stiffness is what reduces the sag, which is what a user sees (it halved the static sag of the
     least-R choice on some long-hair strands; measurements in benchmarks/RESULTS.md). If the least
-    residual balances gravity after all, the augmented Lagrangian goes on from it. The message names the bounds that bind (the blocks and
-    vertices whose relaxation would reduce |c|), so a user knows what to relax.
+    residual balances gravity after all, the augmented Lagrangian goes on from it. The message names
+    the bounds that bind (the blocks and vertices whose relaxation would reduce |c|), so a user knows
+    what to relax. Where neither holds (|c|_inf small, no certificate) and |c|_inf has not halved
+    over STALLED_TESTS such tests (mu grown 10^5-fold meanwhile), the solve ends max_iterations
+    at once, and a default solve takes its other start: on a 3000-vertex groom strand with a pinned
+    tip the penalty crawled 0.6% of |c| per test, 20 tests and 600 Gauss-Newton steps (11.5 s) to
+    max_iterations; of 104 strands held by a pinned tip, a pin or a head that converged, none took
+    more than 2 tests (benchmarks/RESULTS.md, 2026-12-05, twenty-eighth session).
 The measurements behind these choices are in benchmarks/RESULTS.md.
 """
 from __future__ import annotations
@@ -183,6 +189,9 @@ from .confirmed_start import confirmed_start
 from .statics_start import square_rest_system, statics_start, unbalanceable
 
 STALLED_VIOLATION = 1e-3  # |c|_inf above which a penalty of 1e4 mu0 hands over to least_residual
+#: infeasibility tests without a certificate over which |c|_inf must fall below STALLED_DROP of where it
+#: was, or the solve ends (module docstring, Infeasible): no converged strand measured took more than 2
+STALLED_TESTS, STALLED_DROP = 5, 0.5
 #: how an infeasibility message tells the user to relax the bounds (API and command line)
 RELAX = ("Relax those bounds (bounds={block: (lower, upper)}, or curvature_budget / twist_budget for the "
          "rest-shape boxes; command line: --bound BLOCK=LO,HI or --bound curvature_budget=VALUE)")
@@ -303,6 +312,7 @@ def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: floa
     model = _Model(problem)
     counts = zero_counts()
     attempts = feasible_rounds = 0
+    tested: list[float] = []  # |c|_inf at each infeasibility test without a certificate (_stalled_message)
     # the start, its KKT distance and its Result's stability (whose seconds make_result's time
     # leaves out) from one compiled call (solvers.confirmed_start)
     confirmed, measured = None, 0.0
@@ -486,9 +496,23 @@ def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: floa
                     estimate = least_squares_multipliers(model.w * (p - model.p0), J, scale, p, lower, upper)
                     lam = estimate if np.all(np.isfinite(estimate)) else np.zeros_like(lam)
                     mu = _initial_penalty(mu0, problem.objective(p), c)
+                else:  # no certificate, |c| small: stalled where the violation no longer falls (module docstring)
+                    tested.append(violation)
+                    if len(tested) > STALLED_TESTS and violation > STALLED_DROP * tested[-1 - STALLED_TESTS]:
+                        return finish("max_iterations", _stalled_message(tested, counts["outer"], mu_growth))
         previous_violation = violation
         omega = max(target, 0.1 * omega)
     return finish("max_iterations", _max_outer_message(problem, p, history[-1], max_outer, tol, kkt_tol))
+
+
+def _stalled_message(tested: list[float], outer: int, mu_growth: float) -> str:
+    """The message of a solve ended where |c|_inf stalled over STALLED_TESTS infeasibility tests
+    without a certificate (module docstring, Infeasible)."""
+    return (f"stopped after {outer} outer iterations: |c|_inf = {tested[-1]:.3g} fell by only "
+            f"{1.0 - tested[-1] / tested[-1 - STALLED_TESTS]:.1%} over the last {STALLED_TESTS} infeasibility tests "
+            f"while the penalty grew {mu_growth ** STALLED_TESTS:.3g}-fold, and no certificate says the boxes cannot "
+            "balance the strand: the augmented Lagrangian is stuck at a point that is not in equilibrium; another "
+            "solver may find one (solver='ipopt'; command line: --solver ipopt)")
 
 
 def _inner_stop(reason: int, qp_status: str, max_iterations: int, clock: float, counts: dict,

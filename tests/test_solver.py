@@ -296,6 +296,17 @@ def test_every_strand_size_converges_stably(vertices):
         assert result.iterations["gauss_newton"] < (60 if vertices < 10 else 10)
 
 
+def test_a_penalty_that_cannot_reduce_the_violation_ends_the_solve():
+    """A 3000-vertex groom strand with a pinned tip: from p0 the augmented Lagrangian reaches |c|_inf
+    5.8e-6, where no certificate says the boxes cannot balance it and the growing penalty moved |c| by
+    0.6% per test; it crawled 600 Gauss-Newton steps there. Five tests without halving |c| end it."""
+    problem = sagfree.Problem(sagfree.scenes.groom(3, 3000, seed=0)[1].attached(tip="pinned"), stabilize=False)
+    result = solve_alm(problem, start="p0")
+    assert result.status == "max_iterations" and "infeasibility tests" in result.message, result.message
+    assert result.iterations["gauss_newton"] < 300 and result.residual_inf > 1e-6
+    assert "--solver ipopt" in result.message
+
+
 def test_pinned_tip_of_a_long_strand_converges():
     """A held tip makes the supports' reactions unknowns, and Newton-SQP finishes the solve
     (alm._newton_sqp). On horizontal(n=400, tip="pinned") its full first step left |c|_inf 1.5e3
