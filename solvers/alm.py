@@ -530,7 +530,7 @@ def _inner_stop(reason: int, qp_status: str, max_iterations: int, clock: float, 
 def _crawl_message(problem: Problem, p, violation: float, outer: int, tol: float, kkt_tol: float) -> str:
     """The message of a solve whose Gauss-Newton steps crawled at a feasible p for CRAWL_ROUNDS outer
     iterations after its last Newton-SQP attempt (module docstring, Newton-SQP)."""
-    return (f"stopped after {outer} outer iterations at a feasible point (|c|_inf = {violation:.3g} <= {tol:g}) "
+    return (f"stopped after {outer} outer iterations at a feasible point (|c|_inf = {violation:.3g} <= {tol:.3g}) "
             f"whose KKT distance {kkt_optimality(problem, p):.3g} stays above {kkt_tol:g}: Gauss-Newton crawled "
             f"there for {CRAWL_ROUNDS} outer iterations after the last Newton-SQP attempt; loosen kkt_tol to accept "
             "it (command line: --option kkt_tol=X)")
@@ -542,9 +542,9 @@ def _max_outer_message(problem: Problem, p, violation: float, max_outer: int, to
     so a user can judge the answer; elsewhere |c|_inf."""
     if violation <= tol:
         return (f"stopped after {max_outer} outer iterations at a feasible point (|c|_inf = {violation:.3g} <= "
-                f"{tol:g}) whose KKT distance {kkt_optimality(problem, p):.3g} stays above {kkt_tol:g}; raise "
+                f"{tol:.3g}) whose KKT distance {kkt_optimality(problem, p):.3g} stays above {kkt_tol:g}; raise "
                 "max_outer or kkt_tol (command line: --option max_outer=N or --option kkt_tol=X)")
-    return (f"stopped after {max_outer} outer iterations with |c|_inf = {violation:.3g} (target {tol:g}); raise "
+    return (f"stopped after {max_outer} outer iterations with |c|_inf = {violation:.3g} (target {tol:.3g}); raise "
             "max_outer (command line: --option max_outer=N)")
 
 
