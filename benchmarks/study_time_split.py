@@ -21,7 +21,6 @@ import argparse
 import time
 import warnings
 
-import numpy as np
 
 from sagfree.contract.result import status_summary
 from sagfree.formulation.strand import Strand

@@ -170,10 +170,7 @@ def warm_paths(solver: str, solver_options: dict | None = None, problem_options:
     the compiled outer loop, the largest group of kernels that nothing else calls. Raises what the
     solve raises (the child's exit status is all that reads it)."""
     entry = solver_entry(solver)
-    problem = _warm_strand(problem_options or {})
-    options = {**_structure_options(solver_options), **entry.warm_options}
-    for path in entry.warm_paths:
-        solve_stabilized(entry.function, problem, {**options, **path})
+    _solved_along(entry, solver_options, problem_options or {}, entry.warm_paths)
 
 
 def warm_check(problem_options: dict | None = None) -> float:
@@ -197,6 +194,15 @@ def _check_warm_strand(problem_options: dict) -> None:
     sag_check(problem, problem.p0, steps=2)
 
 
+def _solved_along(entry, solver_options: dict | None, problem_options: dict, paths) -> Problem:
+    """The warm-up strand, solved with the entry's solver once per path (options over the warm-up's)."""
+    problem = _warm_strand(problem_options)
+    options = {**_structure_options(solver_options), **entry.warm_options}
+    for path in paths:
+        solve_stabilized(entry.function, problem, {**options, **path})
+    return problem
+
+
 def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict, paths: bool = True) -> None:
     """The warm-up strand solved (along the solver's warm paths too, with ``paths``), then its
     constraints' curvature evaluated once (asc's Newton-SQP, for held tips and long strands, builds
@@ -205,10 +211,7 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     reach it) and a stabilization round taken from its optimum (the warm-up strand is stable, and
     the round's kernels, floor_steps, otherwise compile or load in the first stabilized strand of
     each worker of a batch)."""
-    problem = _warm_strand(problem_options)
-    options = {**_structure_options(solver_options), **entry.warm_options}
-    for path in ({}, *(entry.warm_paths if paths else ())):
-        solve_stabilized(entry.function, problem, {**options, **path})
+    problem = _solved_along(entry, solver_options, problem_options, ({}, *(entry.warm_paths if paths else ())))
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
     change = problem.remembered("least rest change")
     if change is not None:  # the infeasibility certificate's kernels (a feasible strand's solve skips it)
