@@ -8,7 +8,11 @@ For groom strands of 25 to 400 vertices (the same physical strands at each resol
    step, Newton steps per time step, and time per vertex per Newton step (flat = linear cost);
 2. the Newton linear solve alone: the banded Cholesky the simulation uses (sagfree.linalg) against
    LAPACK's banded Cholesky and a dense Cholesky of the same matrix (the baselines, measured in this
-   run), with their ratios.
+   run), with their ratios;
+3. the forward check of our optimized parameters (sag_check: 200 implicit-Euler steps, the static
+   solve, the push) and the naive parameters' static solve, with the Newton solve compiled
+   (formulation.newton) against its Python loop (the baseline, measured in this run on the same
+   strands), their ratio and the largest difference of the final states.
 """
 from __future__ import annotations
 
@@ -22,7 +26,9 @@ import sagfree
 from sagfree.formulation.simulation import (
     CHECK_TOLERANCE,
     IncrementalPotential,
+    equilibrium,
     generalized_masses,
+    sag_check,
 )
 from sagfree.linalg.cholesky import band_cholesky, band_solve
 
@@ -89,6 +95,32 @@ def solve_table(repeats: int = 20) -> None:
               f"{times[1] / times[0]:13.1f} {times[2] / times[0]:12.1f}")
 
 
+def compiled_table(strands: int) -> None:
+    print(f"\n3. the Newton solve compiled against its Python loop, {strands} groom strands per size, one core "
+          "(ms per strand)")
+    print(f"   {'vertices':>8} {'sag_check':>9} {'Python':>8} {'ratio':>6} {'static naive':>12} {'Python':>8} "
+          f"{'ratio':>6} {'max |dq| / L':>12}")
+    for n in SIZES:
+        times, difference = np.zeros(4), 0.0
+        for strand in sagfree.scenes.groom(strands, n, seed=0):
+            compiled, python = sagfree.Problem(strand), sagfree.Problem(strand)
+            python.__dict__["newton_kernels"] = None  # simulation.newton_solve's Python loop
+            p = sagfree.solve(compiled).p
+            states = []
+            for k, (check, problem) in enumerate([(True, compiled), (True, python), (False, compiled),
+                                                  (False, python)]):
+                equilibrium(problem, problem.p0, max_steps=2)  # load the compiled model outside the timing
+                start = time.perf_counter()
+                found = sag_check(problem, p) if check else equilibrium(problem, problem.p0)
+                times[k] += time.perf_counter() - start
+                if not check:
+                    states.append(found.q)
+            difference = max(difference, np.abs(states[0] - states[1]).max() / strand.length)
+        times *= 1e3 / strands
+        print(f"   {n:8d} {times[0]:9.1f} {times[1]:8.1f} {times[1] / times[0]:6.1f} {times[2]:12.2f} "
+              f"{times[3]:8.2f} {times[3] / times[2]:6.1f} {difference:12.1e}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--strands", type=int, default=4, help="groom strands per size (default 4)")
@@ -96,6 +128,7 @@ def main() -> None:
     args = parser.parse_args()
     run_table(args.strands, args.steps)
     solve_table()
+    compiled_table(args.strands)
 
 
 if __name__ == "__main__":

@@ -496,6 +496,25 @@ class Problem:
                 (*self._free_gather, scale.size, row_scale, column_scale, start_vector(scale.size)), scale,
                 self.free_index)
 
+    @functools.cached_property
+    def newton_kernels(self):
+        """What newton.newton_kernel needs of the strand to run the simulation's Newton solve in one
+        compiled call, or None where a stencil function is not compiled or bodies touch the strand
+        (their contact penalty is numpy code): (the slot maps' arrays, (edge geometry, vertex
+        geometry, edge DOFs, vertex DOFs), the drivers of the edge energy, gradient and Hessian and
+        of the vertex ones, the band plan (target, source, ones, rows), the free block's gather
+        (target, source, size), the free DOFs, f_ext)."""
+        functions = (self.edge_functions, self.vertex_functions)
+        if self.bodies or not all(getattr(f, kind).compiled for f in functions for kind in ("energy", "gradient",
+                                                                                             "hessian")):
+            return None
+        strand = (*(np.ascontiguousarray(a, dtype=float) for a in (self._edge_geometry, self._vertex_geometry)),
+                  *(np.ascontiguousarray(a, dtype=np.int64) for a in (self.edge_dofs, self.vertex_dofs)))
+        drivers = tuple(getattr(f, kind).address for f in functions for kind in ("energy", "gradient", "hessian"))
+        return (self._slot_arrays, strand, drivers, (*self._band_plan, HALF_BANDWIDTH + 1),
+                (*self._free_gather, self.free_index.size), np.ascontiguousarray(self.free_index, dtype=np.int64),
+                np.ascontiguousarray(self.external_forces, dtype=float))
+
     def remember_stability(self, p, value: float, v: np.ndarray) -> None:
         """Store ``stability(p, vector=True)`` at q*, computed by a compiled call from
         ``stability_kernels``, in the memo ``stability`` reads."""

@@ -26,12 +26,13 @@ REBASE_ANGLE from its frame's tangent within one solve, the frames are re-based 
 iterate (exact in value: the transported frame is the same), which keeps the transport far from its
 singularity at opposite tangents during large static sags.
 
-Newton (``newton_solve``): the free block of K = d2Phi/dq2 + mu M is banded (half bandwidth 10) and
-factored by the banded Cholesky of sagfree.linalg in O(n); an Armijo backtracking line search on Phi
-takes the step, along a curve on which the edges of the free tail turn instead of stretching
-(``length_keeping_step``). mu is a Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is
-the inertia of a pseudo time step 1/sqrt(mu)): it falls 16x when a full step decreased Phi by more than 0.75 of the
-quadratic model's prediction, and rises 4x after a poorer or shortened step, or when the line search fails
+Newton (``newton_solve``; its whole loop is one compiled call, the newton module): the free block of
+K = d2Phi/dq2 + mu M is banded (half bandwidth 10) and factored by the banded Cholesky of
+sagfree.linalg in O(n); an Armijo backtracking line search on Phi takes the step, along a curve on
+which the edges of the free tail turn instead of stretching (``length_keeping_step``). mu is a
+Levenberg-Marquardt damping in the mass metric (1/s^2: mu M is the inertia of a pseudo time step
+1/sqrt(mu)): it falls 16x when a full step decreased Phi by more than 0.75 of the quadratic model's
+prediction, and rises 4x after a poorer or shortened step, or when the line search fails
 (MAX_HALVINGS halvings; the direction is then recomputed); below MU_MIN it is 0, i.e. pure Newton
 with quadratic convergence. The
 implicit-Euler steps start at mu = 0 (their own inertia W keeps Newton in range). The static solve
@@ -63,29 +64,19 @@ from sagfree.linalg.cholesky import band_cholesky, band_solve
 from . import dofs
 from .contact import FRICTION_CREEP, LaggedFriction, contact_penalty, lagged_friction
 from .frames import Frames, transport_frames, unit
+from .newton import (ARMIJO, MAX_HALVINGS, MAX_REJECTED, MU_MIN, MU_STATIC, NO_STEP, NON_FINITE,
+                     OUT_OF_STEPS, REBASE_ANGLE, STEP_TOLERANCE, CONVERGED, STAGNATED, TINY_STEP,
+                     length_keeping_step, newton_kernel, outcome_message, stagnated)
 from .problem import Problem
 
-#: Newton has converged when the scaled residual max |grad Phi / D| is below this.
+#: Newton has converged when the scaled residual max |grad Phi / D| is below this (the other rules
+#: and the loop's constants: the newton module, which runs the loop compiled).
 RESIDUAL_TOLERANCE = 1e-8
-#: ... or when a Newton step moves vertices by at most this many strand lengths (and angles by rad).
-STEP_TOLERANCE = 1e-10
-#: ... or (below the round-off floor) when the residual has not halved in STAGNATION_STEPS steps.
-STAGNATION_STEPS = 3
-#: Levenberg-Marquardt damping mu (1/s^2): smallest non-zero value, start of the static solve,
-#: directions rejected in a row (line search failed, or K indefinite) before giving up.
-MU_MIN = 1.0
-MU_STATIC = 1e6
-MAX_REJECTED = 40
-#: Line search: Armijo constant and step halvings before mu is raised instead.
-ARMIJO = 1e-4
-MAX_HALVINGS = 4
 #: Tolerance of sag_check: below the round-off floor, so that Newton always steps.
 CHECK_TOLERANCE = 1e-12
 #: push_check: the push (largest vertex displacement over L), the run's length (s) and time step (s).
 #: 5 s is several periods of the slowest stable modes and ~20 e-foldings of the mildest saddle seen.
 PUSH, PUSH_DURATION, PUSH_DT = 1e-3, 5.0, 1e-2
-#: Tangent turn (rad) above which the reference frames are re-based on the current iterate.
-REBASE_ANGLE = np.radians(60.0)
 
 
 @dataclass
@@ -257,12 +248,16 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
     """Minimize Phi over the free DOFs from q (prescribed DOFs stay as given); module docstring.
 
     mu: initial Levenberg-Marquardt damping (1/s^2). Returns the final q and the solve's record;
-    re-bases ``potential.frames`` when tangents turn far.
+    re-bases ``potential.frames`` when tangents turn far. One compiled call where the stencils are
+    compiled and Phi has no bodies and no friction (newton.newton_kernel), else this loop in Python.
     """
     problem = potential.problem
-    free = problem.free_index
     scale, metric, step_limit, floor = potential.scales
     anchor = int(problem.strand.prescribed_vertices.max())  # the tail past it turns (length_keeping_step)
+    kernels = problem.newton_kernels
+    if kernels is not None and potential.friction is None:
+        return _compiled_newton_solve(potential, kernels, q, tol, max_steps, mu, anchor)
+    free = problem.free_index
     q = np.array(q, dtype=float)
     record = NewtonSolve()
     phi = potential.value(q)
@@ -272,19 +267,13 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
         residual = float(np.max(np.abs(g / scale)))
         record.residuals.append(residual)
         if not np.isfinite(residual) or not np.isfinite(phi):
-            record.message = "non-finite energy or force"
-            return q, record
+            return q, _ended(record, NON_FINITE, tol, floor, max_steps, mu)
         if residual <= tol:
-            record.converged, record.message = True, f"residual {residual:.2e} <= {tol:g}"
-            return q, record
-        if residual <= floor and (tiny_step or _stagnated(record.residuals)):
-            how = f"Newton step below {STEP_TOLERANCE:g}" if tiny_step else "stagnated"
-            record.converged = True
-            record.message = f"residual {residual:.2e} at the round-off floor {floor:.1e} ({how})"
-            return q, record
+            return q, _ended(record, CONVERGED, tol, floor, max_steps, mu)
+        if residual <= floor and (tiny_step or stagnated(np.array(record.residuals), len(record.residuals))):
+            return q, _ended(record, TINY_STEP if tiny_step else STAGNATED, tol, floor, max_steps, mu)
         if record.steps == max_steps:
-            record.message = f"no convergence in {max_steps} Newton steps (residual {residual:.2e})"
-            return q, record
+            return q, _ended(record, OUT_OF_STEPS, tol, floor, max_steps, mu)
         band = problem.free_band(potential.hessian_band(q))
         for _ in range(MAX_REJECTED):
             damped = band.copy()
@@ -301,9 +290,7 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
             record.rejected += 1
             mu = max(4.0 * mu, MU_MIN)
         else:
-            record.message = (f"no acceptable step after {MAX_REJECTED} increases of mu to {mu:.3g} "
-                              f"(residual {residual:.2e})")
-            return q, record
+            return q, _ended(record, NO_STEP, tol, floor, max_steps, mu)
         if alpha == 1.0:  # the quadratic model held over the full step: how well?
             predicted = -(g @ d + 0.5 * quadratic_form(band, d))
             resolvable = predicted > 1e3 * np.finfo(float).eps * max(abs(phi), abs(phi_trial))
@@ -323,6 +310,37 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
             phi = potential.value(q)
 
 
+def _ended(record: NewtonSolve, outcome: int, tol: float, floor: float, max_steps: int, mu: float) -> NewtonSolve:
+    """``record`` of a solve that ended with ``outcome`` (newton module), its message and verdict set."""
+    record.converged = outcome in (CONVERGED, TINY_STEP, STAGNATED)
+    record.message = outcome_message(outcome, record.residuals[-1], tol, floor, max_steps, mu)
+    return record
+
+
+def _compiled_newton_solve(potential: IncrementalPotential, kernels: tuple, q: np.ndarray, tol: float,
+                           max_steps: int, mu: float, anchor: int) -> tuple[np.ndarray, NewtonSolve]:
+    """newton_solve's loop in one compiled call (newton.newton_kernel), for a Phi without bodies and
+    friction; the same q, record and re-based frames to rounding."""
+    slots, strand, drivers, plan, gather, free, external = kernels
+    scale, metric, step_limit, floor = potential.scales
+    weight, target = (potential.weight, potential.target) if potential.weight is not None else (_EMPTY, _EMPTY)
+    frames = potential.frames
+    residuals, counts = np.empty(max_steps + 1), np.zeros(5, dtype=np.int64)
+    q, outcome, mu, tangents, a1, twist = newton_kernel(
+        np.array(q, dtype=float), float(mu), *(np.array(a, dtype=float) for a in (frames.tangents, frames.a1,
+                                                                                   frames.reference_twist)),
+        np.array(potential.p, dtype=float), slots, strand, drivers, plan, gather, free, external,
+        *(np.ascontiguousarray(a, dtype=float) for a in (weight, target, scale, metric, step_limit)), float(floor),
+        anchor, float(tol), int(max_steps), residuals, counts)
+    potential.frames = Frames(tangents, a1, twist)  # re-based, or the same values
+    record = NewtonSolve(residuals[:counts[0]].tolist(), int(counts[1]), int(counts[2]), int(counts[3]),
+                         int(counts[4]))
+    return q, _ended(record, outcome, tol, floor, max_steps, mu)
+
+
+_EMPTY = np.empty(0)
+
+
 def _line_search(potential: IncrementalPotential, q, free, phi, slope, d, anchor: int):
     """Armijo backtracking from q along the curve of d (``length_keeping_step``; on the DOFs ``free``):
     the first alpha = 1, 1/2, ... (at most MAX_HALVINGS halvings) with Phi(q(alpha)) <= Phi(q) +
@@ -338,43 +356,6 @@ def _line_search(potential: IncrementalPotential, q, free, phi, slope, d, anchor
             return alpha, trial, phi_trial
         alpha *= 0.5
     return 0.0, None, None
-
-
-def length_keeping_step(q: np.ndarray, free: np.ndarray, alpha: float, d: np.ndarray, anchor: int) -> np.ndarray:
-    """q(alpha): q + alpha d on the DOFs ``free``, except that the edges past vertex ``anchor`` (the
-    last prescribed one) turn instead of stretching. Each such edge e_j = x_{j+1} - x_j becomes
-
-        e_j(alpha) = (|e_j| + alpha t_j . de_j) (e_j + alpha de_j) / |e_j + alpha de_j|      (t_j = e_j / |e_j|)
-
-    (de_j the change d makes to it), and the free tail is rebuilt from x_anchor by summing them.
-    The curve has the straight step's tangent at alpha = 0 (d q(alpha)/d alpha = d there, so
-    Armijo's slope g . d holds), but a turn of an edge no longer lengthens it by alpha^2 |de_j
-    perpendicular|^2 / (2 |e_j|). A hair's stretch stiffness is ~1e6 times its bending's, so along
-    straight steps that second-order stretch held the Newton steps of a strand that falls far
-    short: a long hair falling to hang took 40 times more steps. Vertices up to the anchor (a held
-    tip or pin: a span between prescribed vertices cannot close by summing) step straight; where
-    the step collapses an edge (a first-order length <= 0) the whole step is straight."""
-    trial = q.copy()
-    trial[free] += alpha * d
-    n_vertices = (q.size + 1) // 4
-    if anchor >= n_vertices - 1:
-        return trial
-    index = dofs.position_index(n_vertices)[anchor:]
-    start, moved = q[index], trial[index]
-    edges, turned = np.diff(start, axis=0), np.diff(moved, axis=0)
-    lengths, turned_lengths = np.linalg.norm(edges, axis=1), np.linalg.norm(turned, axis=1)
-    kept = lengths + np.einsum("ij,ij->i", edges, turned - edges) / lengths
-    if not (np.all(kept > 0.0) and np.all(turned_lengths > 0.0)):
-        return trial
-    trial[index[1:]] = start[0] + np.cumsum(turned * (kept / turned_lengths)[:, None], axis=0)
-    return trial
-
-
-def _stagnated(residuals: list[float]) -> bool:
-    """The last STAGNATION_STEPS Newton steps did not halve the residual."""
-    if len(residuals) <= STAGNATION_STEPS:
-        return False
-    return min(residuals[-STAGNATION_STEPS:]) > 0.5 * residuals[-STAGNATION_STEPS - 1]
 
 
 def _displacement(problem: Problem, q: np.ndarray) -> float:

@@ -1,0 +1,325 @@
+"""The Newton solve of the forward simulation (simulation.newton_solve) as one compiled call.
+
+Every Newton step of the static solve and of each implicit-Euler step evaluates Phi (J), its
+gradient and its Hessian band through the strand's stencils, factors the damped free block, and
+searches along the length-keeping curve (simulation module docstring). Driven from Python, a step
+is some twenty numpy and ctypes calls, ~0.4 ms on a 100-vertex strand, most of it outside the
+stencils: the forward check of every report and the static solves of the infeasible strands' best
+effort (solvers.least_sag) spent their time there. ``newton_kernel`` runs newton_solve's whole loop
+as compiled code: the stencils through their C drivers at their addresses (at_rest.call_into), the
+Hessian band as at_rest.hessian_band scatters it, the banded Cholesky of linalg.cholesky, the
+line search along ``length_keeping_step``, the damping's rule, and the re-basing of the frames
+(frames._transported). Same formulas in the same order, the energies summed pairwise as numpy sums
+them (linalg.pairwise), the dot products through BLAS: the two loops agree to rounding
+(tests/test_newton.py).
+
+It applies where the stencils are compiled and Phi has neither bodies nor friction (the contact
+penalty and the lagged friction are numpy code): Problem.newton_kernels is None elsewhere, and
+newton_solve takes its Python loop, with the same constants and messages (``outcome_message``).
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from sagfree.linalg.band import quadratic_form
+from sagfree.linalg.cholesky import factor_active, plain_solve
+from sagfree.linalg.pairwise import pairwise_sum
+
+from .at_rest import call_into, hessian_band
+from .frames import _transported
+from .parameters import evaluate_slots
+
+#: Newton has converged when the scaled residual max |grad Phi / D| is below the solve's tol; ...
+#: ... or, below the round-off floor, when a Newton step moves vertices by at most this many strand
+#: lengths (and angles by this many rad) ...
+STEP_TOLERANCE = 1e-10
+#: ... or when the residual has not halved in STAGNATION_STEPS steps.
+STAGNATION_STEPS = 3
+#: Levenberg-Marquardt damping mu (1/s^2): smallest non-zero value, start of the static solve,
+#: directions rejected in a row (line search failed, or K indefinite) before giving up.
+MU_MIN = 1.0
+MU_STATIC = 1e6
+MAX_REJECTED = 40
+#: Line search: Armijo constant and step halvings before mu is raised instead.
+ARMIJO = 1e-4
+MAX_HALVINGS = 4
+#: Tangent turn (rad) above which the reference frames are re-based on the current iterate.
+REBASE_ANGLE = np.radians(60.0)
+
+EPS = float(np.finfo(float).eps)
+
+#: How a Newton solve ended: the residual within tol; at the round-off floor after a tiny step, or
+#: stagnating there; a non-finite energy or force; out of steps; no acceptable step.
+CONVERGED, TINY_STEP, STAGNATED, NON_FINITE, OUT_OF_STEPS, NO_STEP = range(6)
+
+
+def outcome_message(outcome: int, residual: float, tol: float, floor: float, max_steps: int, mu: float) -> str:
+    """The NewtonSolve message of a solve that ended with ``outcome`` at the scaled ``residual``."""
+    if outcome == CONVERGED:
+        return f"residual {residual:.2e} <= {tol:g}"
+    if outcome in (TINY_STEP, STAGNATED):
+        how = f"Newton step below {STEP_TOLERANCE:g}" if outcome == TINY_STEP else "stagnated"
+        return f"residual {residual:.2e} at the round-off floor {floor:.1e} ({how})"
+    if outcome == NON_FINITE:
+        return "non-finite energy or force"
+    if outcome == OUT_OF_STEPS:
+        return f"no convergence in {max_steps} Newton steps (residual {residual:.2e})"
+    return f"no acceptable step after {MAX_REJECTED} increases of mu to {mu:.3g} (residual {residual:.2e})"
+
+
+@numba.njit(cache=True)
+def stagnated(residuals, count):  # pragma: no cover - compiled
+    """The last STAGNATION_STEPS of the ``count`` residuals did not halve the one before them."""
+    if count <= STAGNATION_STEPS:
+        return False
+    least = residuals[count - STAGNATION_STEPS]
+    for k in range(count - STAGNATION_STEPS + 1, count):
+        least = min(least, residuals[k])
+    return least > 0.5 * residuals[count - STAGNATION_STEPS - 1]
+
+
+@numba.njit(cache=True)
+def length_keeping_step(q, free, alpha, d, anchor):  # pragma: no cover - compiled
+    """q(alpha): q + alpha d on the DOFs ``free``, except that the edges past vertex ``anchor`` (the
+    last prescribed one) turn instead of stretching. Each such edge e_j = x_{j+1} - x_j becomes
+
+        e_j(alpha) = (|e_j| + alpha t_j . de_j) (e_j + alpha de_j) / |e_j + alpha de_j|      (t_j = e_j / |e_j|)
+
+    (de_j the change d makes to it), and the free tail is rebuilt from x_anchor by summing them.
+    The curve has the straight step's tangent at alpha = 0 (d q(alpha)/d alpha = d there, so
+    Armijo's slope g . d holds), but a turn of an edge no longer lengthens it by alpha^2 |de_j
+    perpendicular|^2 / (2 |e_j|). A hair's stretch stiffness is ~1e6 times its bending's, so along
+    straight steps that second-order stretch held the Newton steps of a strand that falls far
+    short: a long hair falling to hang took 40 times more steps. Vertices up to the anchor (a held
+    tip or pin: a span between prescribed vertices cannot close by summing) step straight; where
+    the step collapses an edge (a first-order length <= 0) the whole step is straight."""
+    trial = q.copy()
+    for k in range(free.size):
+        trial[free[k]] += alpha * d[k]
+    n_vertices = (q.size + 1) // 4
+    if anchor >= n_vertices - 1:
+        return trial
+    edges = n_vertices - 1 - anchor
+    turned, factor = np.empty((edges, 3)), np.empty(edges)
+    for j in range(edges):
+        a, b = 4 * (anchor + j), 4 * (anchor + j + 1)
+        length = turned_length = along = 0.0
+        for c in range(3):
+            edge, moved = q[b + c] - q[a + c], trial[b + c] - trial[a + c]
+            turned[j, c] = moved
+            length += edge * edge
+            turned_length += moved * moved
+        length, turned_length = np.sqrt(length), np.sqrt(turned_length)
+        for c in range(3):
+            edge = q[b + c] - q[a + c]
+            along += edge * (turned[j, c] - edge)
+        kept = length + along / length
+        if not (kept > 0.0 and turned_length > 0.0):
+            return trial
+        factor[j] = kept / turned_length
+    summed = np.zeros(3)
+    for j in range(edges):  # x_anchor + the running sum of the turned edges
+        b = 4 * (anchor + j + 1)
+        for c in range(3):
+            summed[c] += turned[j, c] * factor[j]
+            trial[b + c] = q[4 * anchor + c] + summed[c]
+    return trial
+
+
+@numba.njit(cache=True)
+def _gathered(q, index):  # pragma: no cover - compiled
+    """q[index] for a 2-D index (the stencils' DOFs), C-contiguous."""
+    out = np.empty(index.shape)
+    for s in range(index.shape[0]):
+        for i in range(index.shape[1]):
+            out[s, i] = q[index[s, i]]
+    return out
+
+
+@numba.njit(cache=True)
+def _reference(tangents, a1, twist):  # pragma: no cover - compiled
+    """rest_geometry.reference_data: (n-2, 13) t^{i-1}, a1^{i-1}, t^i, a1^i, reference twist."""
+    out = np.empty((twist.size, 13))
+    for i in range(twist.size):
+        for c in range(3):
+            out[i, c], out[i, 3 + c] = tangents[i, c], a1[i, c]
+            out[i, 6 + c], out[i, 9 + c] = tangents[i + 1, c], a1[i + 1, c]
+        out[i, 12] = twist[i]
+    return out
+
+
+@numba.njit(cache=True)
+def _phi(q, reference, strand, physical, drivers, external, weight, target):  # pragma: no cover - compiled
+    """Phi(q) (simulation.IncrementalPotential.value): E by the energy drivers, summed as numpy sums
+    them, less f_ext . q, plus the inertia's 1/2 (q - y)^T W (q - y) where W is not empty."""
+    edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
+    edges, vertices = edge_dofs.shape[0], vertex_dofs.shape[0]
+    by_edge, by_vertex = np.empty((edges, 1)), np.empty((vertices, 1))
+    call_into(drivers[0], edges, (_gathered(q, edge_dofs), edge_geometry, physical[0]), (by_edge,))
+    call_into(drivers[3], vertices, (_gathered(q, vertex_dofs), reference, vertex_geometry, physical[1]), (by_vertex,))
+    phi = (pairwise_sum(by_edge.ravel()) + pairwise_sum(by_vertex.ravel())) - np.dot(external, q)
+    if weight.size:
+        d = q - target
+        phi += 0.5 * np.dot(d, weight * d)
+    return phi
+
+
+@numba.njit(cache=True)
+def _gradient(q, reference, strand, physical, drivers, external, weight, target, free):  # pragma: no cover
+    """grad Phi on the free DOFs (IncrementalPotential.gradient): the stencils' gradients summed onto
+    the DOFs edges first, then vertices (np.bincount's order), less f_ext, plus W (q - y)."""
+    edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
+    edges, edge_width = edge_dofs.shape
+    vertices, vertex_width = vertex_dofs.shape
+    by_edge, by_vertex = np.empty((edges, edge_width)), np.empty((vertices, vertex_width))
+    call_into(drivers[1], edges, (_gathered(q, edge_dofs), edge_geometry, physical[0]), (by_edge,))
+    call_into(drivers[4], vertices, (_gathered(q, vertex_dofs), reference, vertex_geometry, physical[1]),
+              (by_vertex,))
+    edge_sum, vertex_sum = np.zeros(q.size), np.zeros(q.size)
+    for s in range(edges):
+        for i in range(edge_width):
+            edge_sum[edge_dofs[s, i]] += by_edge[s, i]
+    for s in range(vertices):
+        for i in range(vertex_width):
+            vertex_sum[vertex_dofs[s, i]] += by_vertex[s, i]
+    g = np.empty(free.size)
+    for k in range(free.size):
+        j = free[k]
+        value = (edge_sum[j] + vertex_sum[j]) - external[j]
+        if weight.size:
+            value += weight[j] * (q[j] - target[j])
+        g[k] = value
+    return g
+
+
+@numba.njit(cache=True)
+def _free_band(q, reference, p, slots, strand, drivers, plan, gather, weight):  # pragma: no cover - compiled
+    """The free block of d2Phi/dq2 in lower band storage: at_rest.hessian_band at q with the current
+    reference, plus W on the diagonal, gathered as Problem.free_band gathers it."""
+    edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
+    target, source, ones, rows = plan
+    band = hessian_band(p, slots[0], slots[1], _gathered(q, edge_dofs), edge_geometry, _gathered(q, vertex_dofs),
+                        reference, vertex_geometry, drivers[2], drivers[5], target, source, ones, rows, q.size)
+    if weight.size:
+        for j in range(q.size):
+            band[0, j] += weight[j]
+    gather_target, gather_source, size = gather
+    flat, out = band.ravel(), np.zeros(rows * size)
+    for k in range(gather_target.size):
+        out[gather_target[k]] = flat[gather_source[k]]
+    return out.reshape(rows, size)
+
+
+@numba.njit(cache=True)
+def _turned_too_far(q, tangents):  # pragma: no cover - compiled
+    """Whether a tangent of q turned by more than REBASE_ANGLE from its frame's (simulation._max_turn)."""
+    least = 1.0
+    for j in range(tangents.shape[0]):
+        a, b = 4 * j, 4 * (j + 1)
+        e0, e1, e2 = q[b] - q[a], q[b + 1] - q[a + 1], q[b + 2] - q[a + 2]
+        norm = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        cosine = (e0 / norm) * tangents[j, 0] + (e1 / norm) * tangents[j, 1] + (e2 / norm) * tangents[j, 2]
+        least = min(least, max(cosine, -1.0))
+    return np.arccos(least) > REBASE_ANGLE
+
+
+@numba.njit(cache=True)
+def _positions(q):  # pragma: no cover - compiled
+    """dofs.positions: (n, 3) vertex positions of q."""
+    n = (q.size + 1) // 4
+    out = np.empty((n, 3))
+    for i in range(n):
+        for c in range(3):
+            out[i, c] = q[4 * i + c]
+    return out
+
+
+@numba.njit(cache=True)
+def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, gather, free, external, weight, target,
+                  scale, metric, step_limit, floor, anchor, tol, max_steps, residuals, counts):  # pragma: no cover
+    """simulation.newton_solve from q (copied) with damping mu, frames (tangents, a1, twist): returns
+    (q, outcome, mu, tangents, a1, twist), the frames re-based where tangents turned far.
+    residuals (max_steps + 1) receives the scaled residual before each step; counts the number of
+    residuals, steps, shortened line searches, rejected directions and failed factorizations (a
+    NewtonSolve's fields). The arguments after p are Problem.newton_kernels' and the potential's
+    (W and y, empty for the static solve) and scales (simulation.newton_scales)."""
+    q = q.copy()
+    physical = (evaluate_slots(slots[0][0], slots[0][1], slots[0][2], slots[0][3], p),
+                evaluate_slots(slots[1][0], slots[1][1], slots[1][2], slots[1][3], p))
+    reference = _reference(tangents, a1, twist)
+    phi = _phi(q, reference, strand, physical, drivers, external, weight, target)
+    rows, size = plan[3], free.size
+    no_border, no_corner, everything = np.zeros((0, size)), np.zeros((0, 0)), np.ones(size, dtype=np.bool_)
+    factor, d = np.empty((size, rows)), np.empty(size)
+    tiny_step = False
+    counts[:] = 0
+    while True:
+        g = _gradient(q, reference, strand, physical, drivers, external, weight, target, free)
+        residual = 0.0
+        for k in range(size):  # np.max: NaN if any entry is NaN
+            value = abs(g[k] / scale[k])
+            if value != value:
+                residual = value
+                break
+            residual = max(residual, value)
+        residuals[counts[0]] = residual
+        counts[0] += 1
+        if not (np.isfinite(residual) and np.isfinite(phi)):
+            return q, NON_FINITE, mu, tangents, a1, twist
+        if residual <= tol:
+            return q, CONVERGED, mu, tangents, a1, twist
+        if residual <= floor and (tiny_step or stagnated(residuals, counts[0])):
+            return q, TINY_STEP if tiny_step else STAGNATED, mu, tangents, a1, twist
+        if counts[1] == max_steps:
+            return q, OUT_OF_STEPS, mu, tangents, a1, twist
+        band = _free_band(q, reference, p, slots, strand, drivers, plan, gather, weight)
+        accepted, alpha, phi_trial, trial = False, 0.0, 0.0, q
+        for _ in range(MAX_REJECTED):
+            damped = band.copy()
+            for j in range(size):
+                damped[0, j] += mu * metric[j]
+            if not factor_active(damped, no_border, no_corner, everything, factor, no_border, no_corner, 0, 0):
+                counts[4] += 1
+                mu = max(4.0 * mu, MU_MIN)
+                continue
+            plain_solve(factor, g, d)
+            for k in range(size):
+                d[k] = -d[k]
+            slope = np.dot(g, d)
+            alpha = 1.0
+            for _ in range(MAX_HALVINGS + 1):  # Armijo along length_keeping_step (simulation._line_search)
+                trial = length_keeping_step(q, free, alpha, d, anchor)
+                phi_trial = _phi(trial, reference, strand, physical, drivers, external, weight, target)
+                unresolvable = -alpha * slope <= 1e3 * EPS * max(abs(phi), abs(phi_trial))
+                if np.isfinite(phi_trial) and (phi_trial <= phi + ARMIJO * alpha * slope or unresolvable):
+                    accepted = True
+                    break
+                alpha *= 0.5
+            if accepted:
+                break
+            counts[3] += 1
+            mu = max(4.0 * mu, MU_MIN)
+        if not accepted:
+            return q, NO_STEP, mu, tangents, a1, twist
+        if alpha == 1.0:  # the quadratic model held over the full step: how well?
+            predicted = -(np.dot(g, d) + 0.5 * quadratic_form(band, d))
+            resolvable = predicted > 1e3 * EPS * max(abs(phi), abs(phi_trial))
+            ratio = (phi - phi_trial) / predicted if resolvable else 1.0
+        else:
+            ratio = 0.0
+        q, phi = trial, phi_trial
+        counts[1] += 1
+        if alpha < 1.0:
+            counts[2] += 1
+        tiny_step = True
+        for k in range(size):
+            tiny_step = tiny_step and abs(alpha * d[k]) <= step_limit[k]
+        if ratio > 0.75:
+            mu = mu / 16.0 if mu > 16.0 * MU_MIN else 0.0
+        elif ratio < 0.25:
+            mu = max(4.0 * mu, MU_MIN)
+        if _turned_too_far(q, tangents):
+            tangents, a1, twist = _transported(_positions(q), tangents, a1, twist)
+            reference = _reference(tangents, a1, twist)
+            phi = _phi(q, reference, strand, physical, drivers, external, weight, target)
