@@ -22,6 +22,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sagfree.linalg import timing
 from sagfree.linalg.band import quadratic_form
 from sagfree.linalg.cholesky import factor_active, plain_solve
 from sagfree.linalg.pairwise import pairwise_sum
@@ -237,25 +238,32 @@ def _positions(q):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, gather, free, external, weight, target,
-                  scale, metric, step_limit, floor, anchor, tol, max_steps, residuals, counts):  # pragma: no cover
+                  scale, metric, step_limit, floor, anchor, tol, max_steps, residuals, counts, clock, clock_id,
+                  seconds):  # pragma: no cover - compiled
     """simulation.newton_solve from q (copied) with damping mu, frames (tangents, a1, twist): returns
     (q, outcome, mu, tangents, a1, twist), the frames re-based where tangents turned far.
     residuals (max_steps + 1) receives the scaled residual before each step; counts the number of
     residuals, steps, shortened line searches, rejected directions and failed factorizations (a
     NewtonSolve's fields). The arguments after p are Problem.newton_kernels' and the potential's
-    (W and y, empty for the static solve) and scales (simulation.newton_scales)."""
+    (W and y, empty for the static solve) and scales (simulation.newton_scales). seconds[0] and [1]
+    accumulate the model evaluation's and the linear algebra's seconds on the clock (address, id)."""
+    buffer = np.zeros(2, dtype=np.int64)
     q = q.copy()
     physical = (evaluate_slots(slots[0][0], slots[0][1], slots[0][2], slots[0][3], p),
                 evaluate_slots(slots[1][0], slots[1][1], slots[1][2], slots[1][3], p))
     reference = _reference(tangents, a1, twist)
+    before = timing.clock_seconds(clock, clock_id, buffer)
     phi = _phi(q, reference, strand, physical, drivers, external, weight, target)
+    seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
     rows, size = plan[3], free.size
     no_border, no_corner, everything = np.zeros((0, size)), np.zeros((0, 0)), np.ones(size, dtype=np.bool_)
     factor, d = np.empty((size, rows)), np.empty(size)
     tiny_step = False
     counts[:] = 0
     while True:
+        before = timing.clock_seconds(clock, clock_id, buffer)
         g = _gradient(q, reference, strand, physical, drivers, external, weight, target, free)
+        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
         residual = 0.0
         for k in range(size):  # np.max: NaN if any entry is NaN
             value = abs(g[k] / scale[k])
@@ -273,24 +281,32 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
             return q, TINY_STEP if tiny_step else STAGNATED, mu, tangents, a1, twist
         if counts[1] == max_steps:
             return q, OUT_OF_STEPS, mu, tangents, a1, twist
+        before = timing.clock_seconds(clock, clock_id, buffer)
         band = _free_band(q, reference, p, slots, strand, drivers, plan, gather, weight)
+        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
         accepted, alpha, phi_trial, trial = False, 0.0, 0.0, q
         for _ in range(MAX_REJECTED):
             damped = band.copy()
             for j in range(size):
                 damped[0, j] += mu * metric[j]
-            if not factor_active(damped, no_border, no_corner, everything, factor, no_border, no_corner, 0, 0):
+            before = timing.clock_seconds(clock, clock_id, buffer)
+            factored = factor_active(damped, no_border, no_corner, everything, factor, no_border, no_corner, 0, 0)
+            if factored:
+                plain_solve(factor, g, d)
+            seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - before
+            if not factored:
                 counts[4] += 1
                 mu = max(4.0 * mu, MU_MIN)
                 continue
-            plain_solve(factor, g, d)
             for k in range(size):
                 d[k] = -d[k]
             slope = np.dot(g, d)
             alpha = 1.0
             for _ in range(MAX_HALVINGS + 1):  # Armijo along length_keeping_step (simulation._line_search)
                 trial = length_keeping_step(q, free, alpha, d, anchor)
+                before = timing.clock_seconds(clock, clock_id, buffer)
                 phi_trial = _phi(trial, reference, strand, physical, drivers, external, weight, target)
+                seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
                 unresolvable = -alpha * slope <= 1e3 * EPS * max(abs(phi), abs(phi_trial))
                 if np.isfinite(phi_trial) and (phi_trial <= phi + ARMIJO * alpha * slope or unresolvable):
                     accepted = True
@@ -322,4 +338,6 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
         if _turned_too_far(q, tangents):
             tangents, a1, twist = _transported(_positions(q), tangents, a1, twist)
             reference = _reference(tangents, a1, twist)
+            before = timing.clock_seconds(clock, clock_id, buffer)
             phi = _phi(q, reference, strand, physical, drivers, external, weight, target)
+            seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before

@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sagfree.linalg import timing
 from sagfree.linalg.band import add_vertex_blocks, quadratic_form
 from sagfree.linalg.cholesky import band_cholesky, band_solve
 
@@ -325,13 +326,15 @@ def _compiled_newton_solve(potential: IncrementalPotential, kernels: tuple, q: n
     scale, metric, step_limit, floor = potential.scales
     weight, target = (potential.weight, potential.target) if potential.weight is not None else (_EMPTY, _EMPTY)
     frames = potential.frames
-    residuals, counts = np.empty(max_steps + 1), np.zeros(5, dtype=np.int64)
+    residuals, counts, seconds = np.empty(max_steps + 1), np.zeros(5, dtype=np.int64), np.zeros(2)
     q, outcome, mu, tangents, a1, twist = newton_kernel(
         np.array(q, dtype=float), float(mu), *(np.array(a, dtype=float) for a in (frames.tangents, frames.a1,
                                                                                    frames.reference_twist)),
         np.array(potential.p, dtype=float), slots, strand, drivers, plan, gather, free, external,
         *(np.ascontiguousarray(a, dtype=float) for a in (weight, target, scale, metric, step_limit)), float(floor),
-        anchor, float(tol), int(max_steps), residuals, counts)
+        anchor, float(tol), int(max_steps), residuals, counts, *timing.CLOCK, seconds)
+    timing.add(timing.MODEL, seconds[0])
+    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     potential.frames = Frames(tangents, a1, twist)  # re-based, or the same values
     record = NewtonSolve(residuals[:counts[0]].tolist(), int(counts[1]), int(counts[2]), int(counts[3]),
                          int(counts[4]))
