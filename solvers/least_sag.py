@@ -76,13 +76,15 @@ class LeastSag:
     """The least-sag parameters and where they rest.
 
     p: parameters inside the box; rest: the static equilibrium from q* of p (Equilibrium, the sag
-    a report measures); start: that of the starting parameters; evaluations: static solves taken;
-    newton: their Newton steps.
+    a report measures); start: that of the starting parameters; naive: that of p0 (the sag a
+    report compares with); evaluations: static solves taken by the minimization; newton: their
+    Newton steps.
     """
 
     p: np.ndarray
     rest: Equilibrium
     start: Equilibrium
+    naive: Equilibrium
     evaluations: int
     newton: int
 
@@ -188,11 +190,16 @@ class StaticSag:
 
 
 def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUATIONS) -> LeastSag:
-    """The least-sag parameters in the box from ``p`` (module docstring)."""
+    """The least-sag parameters in the box from ``p`` (module docstring). Where neither p's static
+    solve nor p0's converges there is no equilibrium to continue from: p is kept, unminimized (a
+    10,000-vertex strand whose static solves each ran out of Newton steps spent minutes more in
+    continuations that could not converge)."""
     lower, upper = problem.layout.lower, problem.layout.upper
     p = np.clip(problem.check_parameters(p), lower, upper)
-    start = equilibrium(problem, p)
-    model = StaticSag(problem, start if start.converged else equilibrium(problem, problem.p0))
+    start, naive = equilibrium(problem, p), equilibrium(problem, problem.p0)
+    if not (start.converged or naive.converged):
+        return LeastSag(p, start, start, naive, 0, 0)
+    model = StaticSag(problem, start if start.converged else naive)
     evaluations, x = 0, p
     while evaluations < max_evaluations:  # runs of RESCALE_EVALUATIONS, each in the column norms where it starts
         norms = model.estimated_column_norms(x)
@@ -216,4 +223,4 @@ def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUA
                 and problem.stability(candidate, q=settled.q, frames=settled.frames) >= problem.stability_margin):
             best, rest = candidate, settled
             break
-    return LeastSag(best, rest, start, evaluations, model.newton)
+    return LeastSag(best, rest, start, naive, evaluations, model.newton)

@@ -1,5 +1,7 @@
 """Stable rest states and best-effort answers (DESIGN section 4): the stabilization loop, its
 derivative, the push check, infeasible strands, and a regularizer that does not grow with n."""
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -215,6 +217,26 @@ def test_least_sag_through_the_operator(long_strand):
     # its start (the stiffest p0) sags 0.41 of the strand's length, naive 1.03: the steps did the work
     assert effort.rest.relative_sag < 0.5 * effort.start.relative_sag
     assert problem.stability(effort.p, q=effort.rest.q, frames=effort.rest.frames) >= problem.stability_margin
+
+
+def test_least_sag_without_a_converged_static_solve_keeps_its_start(long_strand, monkeypatch):
+    """Where neither the start's static solve nor p0's converges there is no equilibrium to
+    continue from: the start comes back at once, no minimization step taken, and the Result says
+    the sag is unknown."""
+    from sagfree.formulation import simulation
+    from sagfree.frontend.best_effort import with_least_sag
+    from sagfree.solvers import least_sag
+
+    problem = sagfree.Problem(long_strand)
+    monkeypatch.setattr(least_sag, "equilibrium", lambda problem, p, **options: simulation.equilibrium(
+        problem, p, **{**options, "max_steps": 2}))  # every static solve runs out of Newton steps
+    start = stiffest(problem, problem.p0)
+    effort = least_sag.least_sag(problem, start)
+    assert effort.evaluations == 0 and not effort.rest.converged and not effort.naive.converged
+    np.testing.assert_array_equal(effort.p, start)
+    result = sagfree.solve(problem, solver="naive")
+    result = with_least_sag(problem, dataclasses.replace(result, status="infeasible"))
+    assert result.status == "infeasible" and "sag unknown" in result.message and result.iterations["least_sag"] == 0
 
 
 def test_static_sag_operator_transpose_and_column_norms(long_strand):

@@ -14,7 +14,6 @@ import time
 
 from sagfree.contract.result import Result, make_result
 from sagfree.formulation.problem import Problem
-from sagfree.formulation.simulation import equilibrium
 from sagfree.solvers.least_sag import least_sag
 
 
@@ -22,7 +21,7 @@ def with_least_sag(problem: Problem, result: Result) -> Result:
     """``result`` (infeasible, with a residual force) moved to the least static sag of its box."""
     clock = time.perf_counter()
     effort = least_sag(problem, result.p)
-    naive = equilibrium(problem, problem.p0)
+    naive = effort.naive
     counts = {**result.iterations, "least_sag": effort.evaluations}
     if effort.rest.converged:
         note = (f"; then the least static sag inside the box: {effort.rest.relative_sag:.3g} L (naive: "
