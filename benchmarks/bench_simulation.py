@@ -12,7 +12,8 @@ For groom strands of 25 to 400 vertices (the same physical strands at each resol
 3. the forward check of our optimized parameters (sag_check: 200 implicit-Euler steps, the static
    solve, the push) and the naive parameters' static solve, with the Newton solve compiled
    (formulation.newton) against its Python loop (the baseline, measured in this run on the same
-   strands), their ratio and the largest difference of the final states.
+   strands), their ratio and the largest difference of the final states; on groom strands and on
+   strands lying on the head (the contact penalty compiled too).
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ from sagfree.formulation.simulation import (
     sag_check,
 )
 from sagfree.linalg.cholesky import band_cholesky, band_solve
+from sagfree.scenes.head import HEAD, head_groom
 
 SIZES = (25, 50, 100, 200, 400)
 
@@ -96,14 +98,16 @@ def solve_table(repeats: int = 20) -> None:
 
 
 def compiled_table(strands: int) -> None:
-    print(f"\n3. the Newton solve compiled against its Python loop, {strands} groom strands per size, one core "
-          "(ms per strand)")
+    print(f"\n3. the Newton solve compiled against its Python loop, {strands} groom strands per size (and on the "
+          "head: head_groom, 100 vertices, HEAD), one core (ms per strand)")
     print(f"   {'vertices':>8} {'sag_check':>9} {'Python':>8} {'ratio':>6} {'static naive':>12} {'Python':>8} "
           f"{'ratio':>6} {'max |dq| / L':>12}")
-    for n in SIZES:
+    cases = [(str(n), sagfree.scenes.groom(strands, n, seed=0), {}) for n in SIZES]
+    cases.append(("100 head", head_groom(strands, 100, seed=0), {"bodies": [HEAD]}))
+    for label, groom, options in cases:
         times, difference = np.zeros(4), 0.0
-        for strand in sagfree.scenes.groom(strands, n, seed=0):
-            compiled, python = sagfree.Problem(strand), sagfree.Problem(strand)
+        for strand in groom:
+            compiled, python = sagfree.Problem(strand, **options), sagfree.Problem(strand, **options)
             python.__dict__["newton_kernels"] = None  # simulation.newton_solve's Python loop
             p = sagfree.solve(compiled).p
             states = []
@@ -117,7 +121,7 @@ def compiled_table(strands: int) -> None:
                     states.append(found.q)
             difference = max(difference, np.abs(states[0] - states[1]).max() / strand.length)
         times *= 1e3 / strands
-        print(f"   {n:8d} {times[0]:9.1f} {times[1]:8.1f} {times[1] / times[0]:6.1f} {times[2]:12.2f} "
+        print(f"   {label:>8} {times[0]:9.1f} {times[1]:8.1f} {times[1] / times[0]:6.1f} {times[2]:12.2f} "
               f"{times[3]:8.2f} {times[3] / times[2]:6.1f} {difference:12.1e}")
 
 

@@ -13,9 +13,11 @@ line search along ``length_keeping_step``, the damping's rule, and the re-basing
 them (linalg.pairwise), the dot products through BLAS: the two loops agree to rounding
 (tests/test_newton.py).
 
-It applies where the stencils are compiled and Phi has neither bodies nor friction (the contact
-penalty and the lagged friction are numpy code): Problem.newton_kernels is None elsewhere, and
-newton_solve takes its Python loop, with the same constants and messages (``outcome_message``).
+The contact penalty of bodies (contact.contact_penalty) is summed in the same way, each body's
+distance by the compiled functions of the bodies module (``_contact``). It applies where the
+stencils are compiled, the bodies are spheres, capsules and meshes, and Phi has no friction (the
+lagged friction is numpy code): Problem.newton_kernels is None elsewhere, and newton_solve takes
+its Python loop, with the same constants and messages (``outcome_message``).
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from sagfree.linalg.cholesky import factor_active, plain_solve
 from sagfree.linalg.pairwise import pairwise_sum
 
 from .at_rest import call_into, hessian_band
+from .bodies import Capsule, Mesh, Sphere, _mesh_distance, _round
 from .frames import _transported
 from .parameters import evaluate_slots
 
@@ -49,6 +52,9 @@ MAX_HALVINGS = 4
 REBASE_ANGLE = np.radians(60.0)
 
 EPS = float(np.finfo(float).eps)
+
+#: Body kinds in Problem.newton_kernels' contact arguments (bodies.Sphere, Capsule, Mesh).
+SPHERE, CAPSULE, MESH = range(3)
 
 #: How a Newton solve ended: the residual within tol; at the round-off floor after a tiny step, or
 #: stagnating there; a non-finite energy or force; out of steps; no acceptable step.
@@ -150,16 +156,106 @@ def _reference(tangents, a1, twist):  # pragma: no cover - compiled
     return out
 
 
+def contact_table(bodies: tuple, contacts, free_vertices: np.ndarray):
+    """``_contact``'s description of ``bodies`` with their contact.Contacts ``contacts``: (kinds
+    (B,) of SPHERE, CAPSULE, MESH; parameters (B, 7): a sphere's centre and radius, a capsule's a, b
+    and radius; each mesh's rows of the next two (B, 4): vertices start and stop, faces start and
+    stop; the meshes' vertices and faces, stacked; the contact levels (n, B), the penalty stiffness
+    (n,), the free vertices), or None if a body is of another kind (the Python loop evaluates it)."""
+    kinds, parameters = np.zeros(len(bodies), np.int64), np.zeros((len(bodies), 7))
+    vertices, faces, rows = [np.zeros((0, 3))], [np.zeros((0, 3), np.int64)], np.zeros((len(bodies), 4), np.int64)
+    for b, body in enumerate(bodies):
+        if type(body) is Sphere:  # exactly: a subclass may measure the distance its own way
+            kinds[b], parameters[b, :4] = SPHERE, (*body.center, body.radius)
+        elif type(body) is Capsule:
+            kinds[b], parameters[b] = CAPSULE, (*body.a, *body.b, body.radius)
+        elif type(body) is Mesh:
+            kinds[b] = MESH
+            start, first = sum(len(v) for v in vertices), sum(len(f) for f in faces)
+            rows[b] = start, start + len(body.vertices), first, first + len(body.faces)
+            vertices.append(body.vertices)
+            faces.append(body.faces)
+        else:
+            return None
+    return (kinds, parameters, rows, np.ascontiguousarray(np.concatenate(vertices), dtype=float),
+            np.ascontiguousarray(np.concatenate(faces), dtype=np.int64),
+            np.ascontiguousarray(contacts.levels, dtype=float), np.ascontiguousarray(contacts.stiffness, dtype=float),
+            np.ascontiguousarray(free_vertices, dtype=np.bool_))
+
+
 @numba.njit(cache=True)
-def _phi(q, reference, strand, physical, drivers, external, weight, target):  # pragma: no cover - compiled
+def _body_distance(x, kind, parameters, meshes, mesh_vertices, mesh_faces):  # pragma: no cover - compiled
+    """(phi, n, K) of one body at the points x (n, 3), as Body.evaluate gives them: a sphere
+    (parameters: centre, radius), a capsule (a, b, radius) or a mesh (meshes: its rows of
+    mesh_vertices and mesh_faces, faces numbered within the mesh)."""
+    if kind == SPHERE:
+        return _round(x - parameters[:3], parameters[3])
+    if kind == MESH:
+        return _mesh_distance(x, mesh_vertices[meshes[0]:meshes[1]], mesh_faces[meshes[2]:meshes[3]])
+    a, b = parameters[:3], parameters[3:6]  # a capsule (bodies.Capsule._evaluate)
+    axis = b - a
+    length2 = np.dot(axis, axis)
+    s, offset = np.empty(x.shape[0]), np.empty(x.shape)
+    for i in range(x.shape[0]):
+        along = 0.0
+        for c in range(3):
+            along += (x[i, c] - a[c]) * axis[c]
+        s[i] = min(max(along / length2, 0.0), 1.0)
+        for c in range(3):
+            offset[i, c] = x[i, c] - (a[c] + s[i] * axis[c])
+    phi, n, K = _round(offset, parameters[6])
+    t = axis / np.sqrt(length2)
+    for i in range(x.shape[0]):
+        if 0.0 < s[i] < 1.0:  # along the cylinder the distance does not change
+            distance = np.sqrt(offset[i, 0] ** 2 + offset[i, 1] ** 2 + offset[i, 2] ** 2)
+            distance = distance if distance > 0 else 1.0
+            for c in range(3):
+                for e in range(3):
+                    K[i, c, e] -= t[c] * t[e] / distance
+    return phi, n, K
+
+
+@numba.njit(cache=True)
+def _contact(x, bodies):  # pragma: no cover - compiled
+    """(energy (J), gradient (n, 3), Hessian blocks (n, 3, 3)) of contact.contact_penalty at the
+    positions x, summed body by body as it sums them. bodies: Problem.newton_kernels' contact
+    arguments (kinds, parameters, mesh rows, mesh vertices, mesh faces, levels, stiffness, free)."""
+    kinds, parameters, meshes, mesh_vertices, mesh_faces, levels, stiffness, free = bodies
+    n = x.shape[0]
+    energy, gradient, hessian = 0.0, np.zeros((n, 3)), np.zeros((n, 3, 3))
+    terms = np.empty(n)
+    for b in range(kinds.size):
+        phi, normal, K = _body_distance(x, kinds[b], parameters[b], meshes[b], mesh_vertices, mesh_faces)
+        count = 0
+        for i in range(n):
+            depth = phi[i] - levels[i, b]
+            if not (free[i] and depth < 0.0):
+                continue
+            k = stiffness[i]
+            terms[count] = k * depth * depth
+            count += 1
+            for c in range(3):
+                gradient[i, c] += (k * depth) * normal[i, c]
+                for e in range(3):
+                    hessian[i, c, e] += k * (normal[i, c] * normal[i, e] + depth * K[i, c, e])
+        if count:
+            energy += 0.5 * pairwise_sum(terms[:count])
+    return energy, gradient, hessian
+
+
+@numba.njit(cache=True)
+def _phi(q, reference, strand, physical, drivers, external, bodies, weight, target):  # pragma: no cover
     """Phi(q) (simulation.IncrementalPotential.value): E by the energy drivers, summed as numpy sums
-    them, less f_ext . q, plus the inertia's 1/2 (q - y)^T W (q - y) where W is not empty."""
+    them, less f_ext . q, plus the bodies' contact penalty, plus the inertia's 1/2 (q - y)^T W (q - y)
+    where W is not empty."""
     edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
     edges, vertices = edge_dofs.shape[0], vertex_dofs.shape[0]
     by_edge, by_vertex = np.empty((edges, 1)), np.empty((vertices, 1))
     call_into(drivers[0], edges, (_gathered(q, edge_dofs), edge_geometry, physical[0]), (by_edge,))
     call_into(drivers[3], vertices, (_gathered(q, vertex_dofs), reference, vertex_geometry, physical[1]), (by_vertex,))
     phi = (pairwise_sum(by_edge.ravel()) + pairwise_sum(by_vertex.ravel())) - np.dot(external, q)
+    if bodies[0].size:
+        phi += _contact(_positions(q), bodies)[0]
     if weight.size:
         d = q - target
         phi += 0.5 * np.dot(d, weight * d)
@@ -167,9 +263,11 @@ def _phi(q, reference, strand, physical, drivers, external, weight, target):  # 
 
 
 @numba.njit(cache=True)
-def _gradient(q, reference, strand, physical, drivers, external, weight, target, free):  # pragma: no cover
+def _gradient(q, reference, strand, physical, drivers, external, bodies, weight, target,
+              free):  # pragma: no cover - compiled
     """grad Phi on the free DOFs (IncrementalPotential.gradient): the stencils' gradients summed onto
-    the DOFs edges first, then vertices (np.bincount's order), less f_ext, plus W (q - y)."""
+    the DOFs edges first, then vertices (np.bincount's order), less f_ext, plus the contact
+    penalty's on the positions, plus W (q - y)."""
     edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
     edges, edge_width = edge_dofs.shape
     vertices, vertex_width = vertex_dofs.shape
@@ -184,10 +282,13 @@ def _gradient(q, reference, strand, physical, drivers, external, weight, target,
     for s in range(vertices):
         for i in range(vertex_width):
             vertex_sum[vertex_dofs[s, i]] += by_vertex[s, i]
+    pushed = _contact(_positions(q), bodies)[1] if bodies[0].size else np.zeros((0, 3))
     g = np.empty(free.size)
     for k in range(free.size):
         j = free[k]
         value = (edge_sum[j] + vertex_sum[j]) - external[j]
+        if pushed.shape[0] and j % 4 != 3:
+            value += pushed[j // 4, j % 4]
         if weight.size:
             value += weight[j] * (q[j] - target[j])
         g[k] = value
@@ -195,13 +296,20 @@ def _gradient(q, reference, strand, physical, drivers, external, weight, target,
 
 
 @numba.njit(cache=True)
-def _free_band(q, reference, p, slots, strand, drivers, plan, gather, weight):  # pragma: no cover - compiled
+def _free_band(q, reference, p, slots, strand, drivers, plan, gather, bodies, weight):  # pragma: no cover
     """The free block of d2Phi/dq2 in lower band storage: at_rest.hessian_band at q with the current
-    reference, plus W on the diagonal, gathered as Problem.free_band gathers it."""
+    reference, plus the contact penalty's blocks on the positions (linalg.band.add_vertex_blocks),
+    plus W on the diagonal, gathered as Problem.free_band gathers it."""
     edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
     target, source, ones, rows = plan
     band = hessian_band(p, slots[0], slots[1], _gathered(q, edge_dofs), edge_geometry, _gathered(q, vertex_dofs),
                         reference, vertex_geometry, drivers[2], drivers[5], target, source, ones, rows, q.size)
+    if bodies[0].size:
+        blocks = _contact(_positions(q), bodies)[2]
+        for k in range(3):
+            for j in range(3 - k):
+                for i in range(blocks.shape[0]):
+                    band[k, 4 * i + j] += blocks[i, j + k, j]
     if weight.size:
         for j in range(q.size):
             band[0, j] += weight[j]
@@ -237,8 +345,8 @@ def _positions(q):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, gather, free, external, weight, target,
-                  scale, metric, step_limit, floor, anchor, tol, max_steps, residuals, counts, clock, clock_id,
+def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, gather, free, external, bodies, weight,
+                  target, scale, metric, step_limit, floor, anchor, tol, max_steps, residuals, counts, clock, clock_id,
                   seconds):  # pragma: no cover - compiled
     """simulation.newton_solve from q (copied) with damping mu, frames (tangents, a1, twist): returns
     (q, outcome, mu, tangents, a1, twist), the frames re-based where tangents turned far.
@@ -253,7 +361,7 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
                 evaluate_slots(slots[1][0], slots[1][1], slots[1][2], slots[1][3], p))
     reference = _reference(tangents, a1, twist)
     before = timing.clock_seconds(clock, clock_id, buffer)
-    phi = _phi(q, reference, strand, physical, drivers, external, weight, target)
+    phi = _phi(q, reference, strand, physical, drivers, external, bodies, weight, target)
     seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
     rows, size = plan[3], free.size
     no_border, no_corner, everything = np.zeros((0, size)), np.zeros((0, 0)), np.ones(size, dtype=np.bool_)
@@ -262,7 +370,7 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
     counts[:] = 0
     while True:
         before = timing.clock_seconds(clock, clock_id, buffer)
-        g = _gradient(q, reference, strand, physical, drivers, external, weight, target, free)
+        g = _gradient(q, reference, strand, physical, drivers, external, bodies, weight, target, free)
         seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
         residual = 0.0
         for k in range(size):  # np.max: NaN if any entry is NaN
@@ -282,7 +390,7 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
         if counts[1] == max_steps:
             return q, OUT_OF_STEPS, mu, tangents, a1, twist
         before = timing.clock_seconds(clock, clock_id, buffer)
-        band = _free_band(q, reference, p, slots, strand, drivers, plan, gather, weight)
+        band = _free_band(q, reference, p, slots, strand, drivers, plan, gather, bodies, weight)
         seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
         accepted, alpha, phi_trial, trial = False, 0.0, 0.0, q
         for _ in range(MAX_REJECTED):
@@ -305,7 +413,7 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
             for _ in range(MAX_HALVINGS + 1):  # Armijo along length_keeping_step (simulation._line_search)
                 trial = length_keeping_step(q, free, alpha, d, anchor)
                 before = timing.clock_seconds(clock, clock_id, buffer)
-                phi_trial = _phi(trial, reference, strand, physical, drivers, external, weight, target)
+                phi_trial = _phi(trial, reference, strand, physical, drivers, external, bodies, weight, target)
                 seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
                 unresolvable = -alpha * slope <= 1e3 * EPS * max(abs(phi), abs(phi_trial))
                 if np.isfinite(phi_trial) and (phi_trial <= phi + ARMIJO * alpha * slope or unresolvable):
@@ -339,5 +447,5 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
             tangents, a1, twist = _transported(_positions(q), tangents, a1, twist)
             reference = _reference(tangents, a1, twist)
             before = timing.clock_seconds(clock, clock_id, buffer)
-            phi = _phi(q, reference, strand, physical, drivers, external, weight, target)
+            phi = _phi(q, reference, strand, physical, drivers, external, bodies, weight, target)
             seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before

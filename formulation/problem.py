@@ -28,6 +28,7 @@ from .curvature import check_variant
 from .energies import TERMS
 from .frames import Frames, default_director, first_tangent, project_director
 from .jacobian import JacobianPattern, StrandJacobian, scatter_values
+from .newton import contact_table
 from .bodies import parse_body
 from .contact import Contacts, contact_penalty, find_contacts
 from .rest_geometry import reference_data, rest_geometry
@@ -499,21 +500,22 @@ class Problem:
     @functools.cached_property
     def newton_kernels(self):
         """What newton.newton_kernel needs of the strand to run the simulation's Newton solve in one
-        compiled call, or None where a stencil function is not compiled or bodies touch the strand
-        (their contact penalty is numpy code): (the slot maps' arrays, (edge geometry, vertex
-        geometry, edge DOFs, vertex DOFs), the drivers of the edge energy, gradient and Hessian and
-        of the vertex ones, the band plan (target, source, ones, rows), the free block's gather
-        (target, source, size), the free DOFs, f_ext)."""
+        compiled call, or None where a stencil function is not compiled or a body is not a sphere,
+        capsule or mesh: (the slot maps' arrays, (edge geometry, vertex geometry, edge DOFs, vertex
+        DOFs), the drivers of the edge energy, gradient and Hessian and of the vertex ones, the band
+        plan (target, source, ones, rows), the free block's gather (target, source, size), the free
+        DOFs, f_ext, the contact penalty's bodies (``_newton_bodies``))."""
         functions = (self.edge_functions, self.vertex_functions)
-        if self.bodies or not all(getattr(f, kind).compiled for f in functions for kind in ("energy", "gradient",
-                                                                                             "hessian")):
+        bodies = contact_table(self.bodies, self.contacts, self.free_vertices)
+        if bodies is None or not all(getattr(f, kind).compiled for f in functions
+                                     for kind in ("energy", "gradient", "hessian")):
             return None
         strand = (*(np.ascontiguousarray(a, dtype=float) for a in (self._edge_geometry, self._vertex_geometry)),
                   *(np.ascontiguousarray(a, dtype=np.int64) for a in (self.edge_dofs, self.vertex_dofs)))
         drivers = tuple(getattr(f, kind).address for f in functions for kind in ("energy", "gradient", "hessian"))
         return (self._slot_arrays, strand, drivers, (*self._band_plan, HALF_BANDWIDTH + 1),
                 (*self._free_gather, self.free_index.size), np.ascontiguousarray(self.free_index, dtype=np.int64),
-                np.ascontiguousarray(self.external_forces, dtype=float))
+                np.ascontiguousarray(self.external_forces, dtype=float), bodies)
 
     def remember_stability(self, p, value: float, v: np.ndarray) -> None:
         """Store ``stability(p, vector=True)`` at q*, computed by a compiled call from

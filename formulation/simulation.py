@@ -250,7 +250,8 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
 
     mu: initial Levenberg-Marquardt damping (1/s^2). Returns the final q and the solve's record;
     re-bases ``potential.frames`` when tangents turn far. One compiled call where the stencils are
-    compiled and Phi has no bodies and no friction (newton.newton_kernel), else this loop in Python.
+    compiled and Phi has no friction (newton.newton_kernel: Problem.newton_kernels), else this loop
+    in Python.
     """
     problem = potential.problem
     scale, metric, step_limit, floor = potential.scales
@@ -320,9 +321,9 @@ def _ended(record: NewtonSolve, outcome: int, tol: float, floor: float, max_step
 
 def _compiled_newton_solve(potential: IncrementalPotential, kernels: tuple, q: np.ndarray, tol: float,
                            max_steps: int, mu: float, anchor: int) -> tuple[np.ndarray, NewtonSolve]:
-    """newton_solve's loop in one compiled call (newton.newton_kernel), for a Phi without bodies and
-    friction; the same q, record and re-based frames to rounding."""
-    slots, strand, drivers, plan, gather, free, external = kernels
+    """newton_solve's loop in one compiled call (newton.newton_kernel), for a Phi without friction;
+    the same q, record and re-based frames to rounding."""
+    slots, strand, drivers, plan, gather, free, external, bodies = kernels
     scale, metric, step_limit, floor = potential.scales
     weight, target = (potential.weight, potential.target) if potential.weight is not None else (_EMPTY, _EMPTY)
     frames = potential.frames
@@ -330,7 +331,7 @@ def _compiled_newton_solve(potential: IncrementalPotential, kernels: tuple, q: n
     q, outcome, mu, tangents, a1, twist = newton_kernel(
         np.array(q, dtype=float), float(mu), *(np.array(a, dtype=float) for a in (frames.tangents, frames.a1,
                                                                                    frames.reference_twist)),
-        np.array(potential.p, dtype=float), slots, strand, drivers, plan, gather, free, external,
+        np.array(potential.p, dtype=float), slots, strand, drivers, plan, gather, free, external, bodies,
         *(np.ascontiguousarray(a, dtype=float) for a in (weight, target, scale, metric, step_limit)), float(floor),
         anchor, float(tol), int(max_steps), residuals, counts, *timing.CLOCK, seconds)
     timing.add(timing.MODEL, seconds[0])

@@ -9,33 +9,12 @@ from sagfree.bodies import Capsule, Mesh, Sphere, parse_body
 from sagfree.formulation import dofs
 from sagfree.formulation.parameters import CONTACT_BLOCK
 from sagfree.formulation.simulation import equilibrium, push_check
-from sagfree.scenes.head import HEAD, head_groom
+from sagfree.scenes.head import HEAD, head_groom, icosphere
 
 
 def _ball_mesh(subdivisions: int = 2) -> Mesh:
     """An icosphere of radius 1 (outward faces)."""
-    t = (1 + 5 ** 0.5) / 2
-    v = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
-         [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]]
-    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
-         [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
-         [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]]
-    vertices = [np.array(p, float) / np.linalg.norm(p) for p in v]
-    for _ in range(subdivisions):
-        cache, faces = {}, []
-
-        def middle(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                m = vertices[a] + vertices[b]
-                vertices.append(m / np.linalg.norm(m))
-                cache[key] = len(vertices) - 1
-            return cache[key]
-        for a, b, c in f:
-            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
-            faces += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-        f = faces
-    return Mesh(np.array(vertices), np.array(f))
+    return icosphere(1.0, subdivisions)
 
 
 @pytest.mark.parametrize("body", [Sphere([0.1, -0.2, 0.3], 0.5), Capsule([0, 0, 0], [0.2, 0.1, 1.0], 0.3),

@@ -7,11 +7,13 @@ the same steps.
 import numpy as np
 import pytest
 
+from sagfree.bodies import Capsule, Sphere
+from sagfree.formulation.contact import contact_penalty
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import equilibrium, simulate
 from sagfree.formulation.strand import Strand
 from sagfree.scenes import default_groom
-from sagfree.scenes.head import HEAD, head_groom
+from sagfree.scenes.head import HEAD, head_groom, icosphere
 
 
 def _twins(strand: Strand, **options) -> tuple[Problem, Problem]:
@@ -65,7 +67,24 @@ def test_a_failing_solve_reports_as_the_python_one():
     _same_solve(a.newton, b.newton)
 
 
-def test_bodies_keep_the_python_loop():
-    problem = Problem(head_groom(1, 30, seed=0)[0], bodies=[HEAD])
-    assert problem.newton_kernels is None
-    assert equilibrium(problem, problem.p0).converged
+@pytest.mark.parametrize("kind", ["sphere", "capsule", "mesh"])
+def test_the_compiled_contact_penalty_is_the_python_one(kind):
+    """A strand of a head groom settling onto each kind of body: the penalty acts (its energy at the
+    end is positive), and the compiled solve is the Python one."""
+    body = {"sphere": HEAD, "capsule": Capsule([0, 0, -0.02], [0, 0, 0.02], 0.08), "mesh": icosphere()}[kind]
+    compiled, python = _twins(head_groom(2, 60, seed=0)[1], bodies=[body])
+    a, b = equilibrium(compiled, compiled.p0), equilibrium(python, python.p0)
+    assert a.converged and contact_penalty(compiled.contacts, a.positions, compiled.free_vertices)[0] > 0
+    _same_solve(a.newton, b.newton)
+    np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-12 * compiled.strand.length)
+    runs = [simulate(problem, problem.p0, steps=10, dt=1e-3) for problem in (compiled, python)]
+    np.testing.assert_allclose(runs[0].trajectory, runs[1].trajectory, rtol=0, atol=1e-12)
+
+
+def test_other_bodies_and_friction_keep_the_python_loop():
+    class Slab(Sphere):  # a body kind the compiled penalty does not know
+        pass
+
+    assert Problem(head_groom(1, 30, seed=0)[0], bodies=[Slab([0, 0, 0], 0.1)]).newton_kernels is None
+    problem = Problem(head_groom(1, 30, seed=0)[0], bodies=[HEAD], friction=0.5)  # lagged friction: numpy
+    assert problem.newton_kernels is not None and equilibrium(problem, problem.p0).converged
