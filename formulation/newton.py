@@ -263,11 +263,11 @@ def _phi(q, reference, strand, physical, drivers, external, bodies, weight, targ
 
 
 @numba.njit(cache=True)
-def _gradient(q, reference, strand, physical, drivers, external, bodies, weight, target,
+def _gradient(q, reference, strand, physical, drivers, external, pushed, weight, target,
               free):  # pragma: no cover - compiled
     """grad Phi on the free DOFs (IncrementalPotential.gradient): the stencils' gradients summed onto
     the DOFs edges first, then vertices (np.bincount's order), less f_ext, plus the contact
-    penalty's on the positions, plus W (q - y)."""
+    penalty's ``pushed`` (n, 3; none if empty) on the positions, plus W (q - y)."""
     edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
     edges, edge_width = edge_dofs.shape
     vertices, vertex_width = vertex_dofs.shape
@@ -282,7 +282,6 @@ def _gradient(q, reference, strand, physical, drivers, external, bodies, weight,
     for s in range(vertices):
         for i in range(vertex_width):
             vertex_sum[vertex_dofs[s, i]] += by_vertex[s, i]
-    pushed = _contact(_positions(q), bodies)[1] if bodies[0].size else np.zeros((0, 3))
     g = np.empty(free.size)
     for k in range(free.size):
         j = free[k]
@@ -296,16 +295,16 @@ def _gradient(q, reference, strand, physical, drivers, external, bodies, weight,
 
 
 @numba.njit(cache=True)
-def _free_band(q, reference, p, slots, strand, drivers, plan, gather, bodies, weight):  # pragma: no cover
+def _free_band(q, reference, p, slots, strand, drivers, plan, gather, blocks, weight):  # pragma: no cover
     """The free block of d2Phi/dq2 in lower band storage: at_rest.hessian_band at q with the current
-    reference, plus the contact penalty's blocks on the positions (linalg.band.add_vertex_blocks),
-    plus W on the diagonal, gathered as Problem.free_band gathers it."""
+    reference, plus the contact penalty's ``blocks`` (n, 3, 3; none if empty) on the positions
+    (linalg.band.add_vertex_blocks), plus W on the diagonal, gathered as Problem.free_band gathers
+    it."""
     edge_geometry, vertex_geometry, edge_dofs, vertex_dofs = strand
     target, source, ones, rows = plan
     band = hessian_band(p, slots[0], slots[1], _gathered(q, edge_dofs), edge_geometry, _gathered(q, vertex_dofs),
                         reference, vertex_geometry, drivers[2], drivers[5], target, source, ones, rows, q.size)
-    if bodies[0].size:
-        blocks = _contact(_positions(q), bodies)[2]
+    if blocks.shape[0]:
         for k in range(3):
             for j in range(3 - k):
                 for i in range(blocks.shape[0]):
@@ -370,7 +369,10 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
     counts[:] = 0
     while True:
         before = timing.clock_seconds(clock, clock_id, buffer)
-        g = _gradient(q, reference, strand, physical, drivers, external, bodies, weight, target, free)
+        pushed, blocks = np.zeros((0, 3)), np.zeros((0, 3, 3))
+        if bodies[0].size:  # the contact penalty at q, for the gradient and the band
+            _, pushed, blocks = _contact(_positions(q), bodies)
+        g = _gradient(q, reference, strand, physical, drivers, external, pushed, weight, target, free)
         seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
         residual = 0.0
         for k in range(size):  # np.max: NaN if any entry is NaN
@@ -390,7 +392,7 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
         if counts[1] == max_steps:
             return q, OUT_OF_STEPS, mu, tangents, a1, twist
         before = timing.clock_seconds(clock, clock_id, buffer)
-        band = _free_band(q, reference, p, slots, strand, drivers, plan, gather, bodies, weight)
+        band = _free_band(q, reference, p, slots, strand, drivers, plan, gather, blocks, weight)
         seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - before
         accepted, alpha, phi_trial, trial = False, 0.0, 0.0, q
         for _ in range(MAX_REJECTED):
