@@ -159,11 +159,14 @@ def _reference(tangents, a1, twist):  # pragma: no cover - compiled
 def contact_table(bodies: tuple, contacts, free_vertices: np.ndarray):
     """``_contact``'s description of ``bodies`` with their contact.Contacts ``contacts``: (kinds
     (B,) of SPHERE, CAPSULE, MESH; parameters (B, 7): a sphere's centre and radius, a capsule's a, b
-    and radius; each mesh's rows of the next two (B, 4): vertices start and stop, faces start and
-    stop; the meshes' vertices and faces, stacked; the contact levels (n, B), the penalty stiffness
-    (n,), the free vertices), or None if a body is of another kind (the Python loop evaluates it)."""
+    and radius; the mesh's vertices, faces and search tree (bodies.Mesh.tree; empty arrays without a
+    mesh); the contact levels (n, B), the penalty stiffness (n,), the free vertices), or None if a
+    body is of another kind or there is more than one mesh (the Python loop evaluates them)."""
     kinds, parameters = np.zeros(len(bodies), np.int64), np.zeros((len(bodies), 7))
-    vertices, faces, rows = [np.zeros((0, 3))], [np.zeros((0, 3), np.int64)], np.zeros((len(bodies), 4), np.int64)
+    meshes = [body for body in bodies if type(body) is Mesh]
+    if len(meshes) > 1:
+        return None
+    mesh = (meshes[0].vertices, meshes[0].faces, *meshes[0].tree) if meshes else _NO_MESH
     for b, body in enumerate(bodies):
         if type(body) is Sphere:  # exactly: a subclass may measure the distance its own way
             kinds[b], parameters[b, :4] = SPHERE, (*body.center, body.radius)
@@ -171,27 +174,27 @@ def contact_table(bodies: tuple, contacts, free_vertices: np.ndarray):
             kinds[b], parameters[b] = CAPSULE, (*body.a, *body.b, body.radius)
         elif type(body) is Mesh:
             kinds[b] = MESH
-            start, first = sum(len(v) for v in vertices), sum(len(f) for f in faces)
-            rows[b] = start, start + len(body.vertices), first, first + len(body.faces)
-            vertices.append(body.vertices)
-            faces.append(body.faces)
         else:
             return None
-    return (kinds, parameters, rows, np.ascontiguousarray(np.concatenate(vertices), dtype=float),
-            np.ascontiguousarray(np.concatenate(faces), dtype=np.int64),
-            np.ascontiguousarray(contacts.levels, dtype=float), np.ascontiguousarray(contacts.stiffness, dtype=float),
-            np.ascontiguousarray(free_vertices, dtype=np.bool_))
+    return (kinds, parameters, mesh, np.ascontiguousarray(contacts.levels, dtype=float),
+            np.ascontiguousarray(contacts.stiffness, dtype=float), np.ascontiguousarray(free_vertices, dtype=np.bool_))
+
+
+#: contact_table's mesh where there is none: empty arrays of its types
+_NO_MESH = (np.zeros((0, 3)), np.zeros((0, 3), np.int64), *(np.zeros(shape, dtype) for shape, dtype in (
+    ((0, 3), float), ((0, 3), float), (0, np.int64), (0, np.int64), ((0, 2), np.int64), (0, np.int64),
+    ((0, 3), float), (0, float), ((0, 3), float))))
 
 
 @numba.njit(cache=True)
-def _body_distance(x, kind, parameters, meshes, mesh_vertices, mesh_faces):  # pragma: no cover - compiled
+def _body_distance(x, kind, parameters, mesh):  # pragma: no cover - compiled
     """(phi, n, K) of one body at the points x (n, 3), as Body.evaluate gives them: a sphere
-    (parameters: centre, radius), a capsule (a, b, radius) or a mesh (meshes: its rows of
-    mesh_vertices and mesh_faces, faces numbered within the mesh)."""
+    (parameters: centre, radius), a capsule (a, b, radius) or the mesh (its vertices, faces and
+    search tree)."""
     if kind == SPHERE:
         return _round(x - parameters[:3], parameters[3])
     if kind == MESH:
-        return _mesh_distance(x, mesh_vertices[meshes[0]:meshes[1]], mesh_faces[meshes[2]:meshes[3]])
+        return _mesh_distance(x, *mesh)
     a, b = parameters[:3], parameters[3:6]  # a capsule (bodies.Capsule._evaluate)
     axis = b - a
     length2 = np.dot(axis, axis)
@@ -218,14 +221,13 @@ def _body_distance(x, kind, parameters, meshes, mesh_vertices, mesh_faces):  # p
 @numba.njit(cache=True)
 def _contact(x, bodies):  # pragma: no cover - compiled
     """(energy (J), gradient (n, 3), Hessian blocks (n, 3, 3)) of contact.contact_penalty at the
-    positions x, summed body by body as it sums them. bodies: Problem.newton_kernels' contact
-    arguments (kinds, parameters, mesh rows, mesh vertices, mesh faces, levels, stiffness, free)."""
-    kinds, parameters, meshes, mesh_vertices, mesh_faces, levels, stiffness, free = bodies
+    positions x, summed body by body as it sums them. bodies: ``contact_table``'s."""
+    kinds, parameters, mesh, levels, stiffness, free = bodies
     n = x.shape[0]
     energy, gradient, hessian = 0.0, np.zeros((n, 3)), np.zeros((n, 3, 3))
     terms = np.empty(n)
     for b in range(kinds.size):
-        phi, normal, K = _body_distance(x, kinds[b], parameters[b], meshes[b], mesh_vertices, mesh_faces)
+        phi, normal, K = _body_distance(x, kinds[b], parameters[b], mesh)
         count = 0
         for i in range(n):
             depth = phi[i] - levels[i, b]

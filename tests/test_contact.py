@@ -7,6 +7,7 @@ import scipy.linalg
 import sagfree
 from sagfree.bodies import Capsule, Mesh, Sphere, parse_body
 from sagfree.formulation import dofs
+from sagfree.formulation.mesh_tree import closest_on_triangle, solid_angle
 from sagfree.formulation.parameters import CONTACT_BLOCK
 from sagfree.formulation.simulation import equilibrium, push_check
 from sagfree.scenes.head import HEAD, head_groom, icosphere
@@ -28,6 +29,41 @@ def test_body_normal_and_curvature_match_finite_differences(body):
     assert np.abs(gradient - normal).max() < 1e-7
     assert np.abs(hessian - curvature).max() < 1e-5 * max(1.0, np.abs(curvature).max())
     assert (phi < 0).any() and (phi > 0).any()
+
+
+def _every_triangle(mesh: Mesh, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unsigned distance, winding number) at each point, summed over every triangle."""
+    corners = mesh.vertices[mesh.faces]
+    distance, winding = np.empty(len(points)), np.empty(len(points))
+    for k, p in enumerate(points):
+        distance[k] = min(np.linalg.norm(p - closest_on_triangle(p, *abc)[0]) for abc in corners)
+        winding[k] = sum(solid_angle(p, *abc) for abc in corners) / (4 * np.pi)
+    return distance, winding
+
+
+@pytest.mark.parametrize("shape", ["ball", "dented", "cracked"])
+def test_mesh_search_tree_gives_every_triangles_distance_and_sign(shape):
+    """The tree's nearest triangle is the nearest of all (the same distance), and its winding
+    number (far boxes by their dipoles) classifies inside and outside as the sum over every
+    triangle does: on a ball, a non-convex ball (its top pushed in) and a ball with two triangles
+    missing (a crack), at random points and at points 0.1% of the radius off the surface."""
+    ball = _ball_mesh(3)
+    vertices, faces = ball.vertices.copy(), ball.faces
+    if shape == "dented":
+        vertices *= (1 - 0.5 * np.clip(vertices[:, 2], 0, None) ** 2)[:, None]
+    if shape == "cracked":
+        faces = faces[2:]
+    mesh = Mesh(vertices, faces)
+    rng = np.random.default_rng(3)
+    near = vertices[rng.integers(len(vertices), size=60)] * (1 + 1e-3 * rng.choice([-1, 1], size=60))[:, None]
+    points = np.vstack([rng.uniform(-1.5, 1.5, size=(140, 3)), near + 1e-4 * rng.standard_normal((60, 3))])
+    distance, winding = _every_triangle(mesh, points)
+    phi = mesh.signed_distance(points)
+    np.testing.assert_allclose(np.abs(phi), distance, rtol=1e-12, atol=0)
+    clear = np.abs(winding - 0.5) > 0.1  # a point in the crack's mouth is neither in nor out
+    assert clear.sum() >= 190
+    np.testing.assert_array_equal((phi < 0)[clear], (winding > 0.5)[clear])
+    assert np.any(phi < 0) and np.any(phi > 0)
 
 
 def test_mesh_from_obj_is_signed_like_the_sphere_it_approximates(tmp_path):
