@@ -30,7 +30,7 @@ import numpy as np
 
 from sagfree.formulation.bodies import parse_body
 from sagfree.formulation.problem import Problem
-from sagfree.formulation.simulation import sag_check
+from sagfree.formulation.simulation import equilibrium, sag_check
 from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
 from sagfree.linalg import cholesky
@@ -208,11 +208,13 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     constraints' curvature evaluated once (asc's Newton-SQP, for held tips and long strands, builds
     those stencils on first use, inside the first such strand's Result.time otherwise), the
     infeasibility certificate checked (solvers.statics_start: only strands that fail their start
-    reach it) and a stabilization round taken from its optimum (the warm-up strand is stable, and
+    reach it), a stabilization round taken from its optimum (the warm-up strand is stable, and
     the round's kernels, floor_steps, otherwise compile or load in the first stabilized strand of
-    each worker of a batch)."""
+    each worker of a batch) and one Newton step of its static solve (formulation.newton: the best
+    effort of an infeasible strand settles it, 76 ms of loading in the first one otherwise)."""
     problem = _solved_along(entry, solver_options, problem_options, ({}, *(entry.warm_paths if paths else ())))
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
+    equilibrium(problem, problem.p0, max_steps=1)
     change = problem.remembered("least rest change")
     if change is not None:  # the infeasibility certificate's kernels (a feasible strand's solve skips it)
         unbalanceable(problem, change)
