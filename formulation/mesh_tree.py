@@ -61,7 +61,7 @@ def _build(vertices, faces, leaf):  # pragma: no cover - compiled
         centers[f] = (a + b + c) / 3.0
         normals[f] = 0.5 * np.cross(b - a, c - a)  # area-weighted
         areas[f] = np.sqrt(normals[f] @ normals[f])
-    capacity = 2 * count_faces + 1
+    capacity = count_faces + 2  # a split range of more than LEAF (>= 3) leaves >= 2 per side: <= F - 1 nodes
     lower, upper = np.empty((capacity, 3)), np.empty((capacity, 3))
     first, count = np.zeros(capacity, np.int64), np.zeros(capacity, np.int64)
     children = np.full((capacity, 2), -1, np.int64)
