@@ -14,10 +14,11 @@ them (linalg.pairwise), the dot products through BLAS: the two loops agree to ro
 (tests/test_newton.py).
 
 The contact penalty of bodies (contact.contact_penalty) is summed in the same way, each body's
-distance by the compiled functions of the bodies module (``_contact``). It applies where the
-stencils are compiled, the bodies are spheres, capsules and meshes, and Phi has no friction (the
-lagged friction is numpy code): Problem.newton_kernels is None elsewhere, and newton_solve takes
-its Python loop, with the same constants and messages (``outcome_message``).
+distance by the compiled functions of the bodies module (``_contact``; a mesh through its search
+tree, mesh_tree). It applies where the stencils are compiled, the bodies are spheres, capsules and
+at most one mesh, and Phi has no friction (the lagged friction is numpy code): Problem.newton_kernels
+is None elsewhere, and newton_solve takes its Python loop, with the same constants and messages
+(``outcome_message``).
 """
 from __future__ import annotations
 
@@ -53,7 +54,7 @@ REBASE_ANGLE = np.radians(60.0)
 
 EPS = float(np.finfo(float).eps)
 
-#: Body kinds in Problem.newton_kernels' contact arguments (bodies.Sphere, Capsule, Mesh).
+#: Body kinds in contact_table (bodies.Sphere, Capsule, Mesh).
 SPHERE, CAPSULE, MESH = range(3)
 
 #: How a Newton solve ended: the residual within tol; at the round-off floor after a tiny step, or
