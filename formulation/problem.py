@@ -500,11 +500,11 @@ class Problem:
     @functools.cached_property
     def newton_kernels(self):
         """What newton.newton_kernel needs of the strand to run the simulation's Newton solve in one
-        compiled call, or None where a stencil function is not compiled or a body is not a sphere,
-        capsule or mesh: (the slot maps' arrays, (edge geometry, vertex geometry, edge DOFs, vertex
-        DOFs), the drivers of the edge energy, gradient and Hessian and of the vertex ones, the band
-        plan (target, source, ones, rows), the free block's gather (target, source, size), the free
-        DOFs, f_ext, the contact penalty's bodies (``_newton_bodies``))."""
+        compiled call, or None where a stencil function is not compiled or the bodies are not
+        spheres, capsules and at most one mesh: (the slot maps' arrays, (edge geometry, vertex
+        geometry, edge DOFs, vertex DOFs), the drivers of the edge energy, gradient and Hessian and of
+        the vertex ones, the band plan (target, source, ones, rows), the free block's gather (target,
+        source, size), the free DOFs, f_ext, the bodies (newton.contact_table))."""
         functions = (self.edge_functions, self.vertex_functions)
         bodies = contact_table(self.bodies, self.contacts, self.free_vertices)
         if bodies is None or not all(getattr(f, kind).compiled for f in functions
