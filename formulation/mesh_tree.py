@@ -159,7 +159,9 @@ def winding_number(p, vertices, faces, lower, upper, first, count, children, ord
 @numba.njit(cache=True)
 def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
     """Closest point of triangle abc to p, and its feature: 0 face, 1 edge, 2 vertex (Ericson,
-    Real-Time Collision Detection, 5.1.5), with the edge's direction (unit) for an edge."""
+    Real-Time Collision Detection, 5.1.5), with the edge's direction (unit) for an edge. The
+    readable form, the reference of the tests and of benchmarks/bench_mesh.py; the tree's search
+    runs the same steps on scalars (``_closest_components``)."""
     ab, ac, ap = b - a, c - a, p - a
     d1, d2 = ab @ ap, ac @ ap
     zero = np.zeros(3)
@@ -187,31 +189,78 @@ def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
     return a + ab * (vb * denominator) + ac * (vc * denominator), 0, zero
 
 
+@numba.njit(cache=True, inline="always")
+def _closest_components(p, vertices, i, j, k):  # pragma: no cover - compiled
+    """``closest_on_triangle`` for the triangle of vertices i, j, k on scalars, without an array:
+    (squared distance, closest point x, y, z, feature, edge: 0 ab, 1 ac, 2 bc). The same steps;
+    the search below runs it on every triangle it meets, where the array form's temporaries cost
+    nine tenths of the time."""
+    ax, ay, az = vertices[i, 0], vertices[i, 1], vertices[i, 2]
+    abx, aby, abz = vertices[j, 0] - ax, vertices[j, 1] - ay, vertices[j, 2] - az
+    acx, acy, acz = vertices[k, 0] - ax, vertices[k, 1] - ay, vertices[k, 2] - az
+    apx, apy, apz = p[0] - ax, p[1] - ay, p[2] - az
+    d1, d2 = abx * apx + aby * apy + abz * apz, acx * apx + acy * apy + acz * apz
+    qx, qy, qz, feature, edge = ax, ay, az, 2, -1
+    bpx, bpy, bpz = p[0] - vertices[j, 0], p[1] - vertices[j, 1], p[2] - vertices[j, 2]
+    d3, d4 = abx * bpx + aby * bpy + abz * bpz, acx * bpx + acy * bpy + acz * bpz
+    cpx, cpy, cpz = p[0] - vertices[k, 0], p[1] - vertices[k, 1], p[2] - vertices[k, 2]
+    d5, d6 = abx * cpx + aby * cpy + abz * cpz, acx * cpx + acy * cpy + acz * cpz
+    vc, vb, va = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4
+    if d1 <= 0 and d2 <= 0:
+        pass  # vertex a
+    elif d3 >= 0 and d4 <= d3:
+        qx, qy, qz = vertices[j, 0], vertices[j, 1], vertices[j, 2]
+    elif vc <= 0 and d1 >= 0 and d3 <= 0:
+        t = d1 / (d1 - d3)
+        qx, qy, qz, feature, edge = ax + t * abx, ay + t * aby, az + t * abz, 1, 0
+    elif d6 >= 0 and d5 <= d6:
+        qx, qy, qz = vertices[k, 0], vertices[k, 1], vertices[k, 2]
+    elif vb <= 0 and d2 >= 0 and d6 <= 0:
+        t = d2 / (d2 - d6)
+        qx, qy, qz, feature, edge = ax + t * acx, ay + t * acy, az + t * acz, 1, 1
+    elif va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        bx, by, bz = vertices[j, 0], vertices[j, 1], vertices[j, 2]
+        qx, qy, qz = bx + t * (vertices[k, 0] - bx), by + t * (vertices[k, 1] - by), bz + t * (vertices[k, 2] - bz)
+        feature, edge = 1, 2
+    else:
+        denominator = 1.0 / (va + vb + vc)
+        v, w = vb * denominator, vc * denominator
+        qx, qy, qz, feature = ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w, 0
+    ox, oy, oz = p[0] - qx, p[1] - qy, p[2] - qz
+    return ox * ox + oy * oy + oz * oz, qx, qy, qz, feature, edge
+
+
 @numba.njit(cache=True)
 def nearest_triangle(p, vertices, faces, lower, upper, first, count, children, order):  # pragma: no cover
     """(distance, closest point, feature, edge direction, face) of the triangle nearest to p: the
     tree descended nearer box first, boxes farther than the best distance skipped; feature and
     direction as ``closest_on_triangle`` gives them; ties go to the first triangle met."""
-    best, closest, feature, edge, face = np.inf, np.zeros(3), 0, np.zeros(3), -1
+    best, best2, closest, feature, edge, face = np.inf, np.inf, np.zeros(3), 0, -1, -1
     stack = np.empty(128, np.int64)
     stack[0], top = 0, 1
     while top:
         top -= 1
         node = stack[top]
-        if _box_distance2(p, lower[node], upper[node]) >= best * best:
+        if _box_distance2(p, lower[node], upper[node]) >= best2:
             continue
         if count[node]:
             for k in range(first[node], first[node] + count[node]):
                 f = order[k]
-                q, kind, direction = closest_on_triangle(p, vertices[faces[f, 0]], vertices[faces[f, 1]],
-                                                         vertices[faces[f, 2]])
-                d = np.sqrt((p - q) @ (p - q))
+                d2, qx, qy, qz, kind, which = _closest_components(p, vertices, faces[f, 0], faces[f, 1], faces[f, 2])
+                d = np.sqrt(d2)
                 if d < best:
-                    best, closest, feature, edge, face = d, q, kind, direction, f
+                    best, best2, feature, edge, face = d, d * d, kind, which, f
+                    closest[0], closest[1], closest[2] = qx, qy, qz
             continue
         near, far = children[node, 0], children[node, 1]
         if _box_distance2(p, lower[far], upper[far]) < _box_distance2(p, lower[near], upper[near]):
             near, far = far, near
         stack[top], stack[top + 1] = far, near  # the nearer box popped first
         top += 2
-    return best, closest, feature, edge, face
+    direction = np.zeros(3)
+    if feature == 1:
+        ends = ((0, 1), (0, 2), (1, 2))[edge]
+        segment = vertices[faces[face, ends[1]]] - vertices[faces[face, ends[0]]]
+        direction = segment / np.sqrt(segment @ segment)
+    return best, closest, feature, direction, face
