@@ -21,7 +21,6 @@ import argparse
 import time
 import warnings
 
-
 from sagfree.contract.result import status_summary
 from sagfree.formulation.strand import Strand
 from sagfree.frontend.batch import solve_strand

@@ -159,42 +159,30 @@ def winding_number(p, vertices, faces, lower, upper, first, count, children, ord
 @numba.njit(cache=True)
 def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
     """Closest point of triangle abc to p, and its feature: 0 face, 1 edge, 2 vertex (Ericson,
-    Real-Time Collision Detection, 5.1.5), with the edge's direction (unit) for an edge. The
-    readable form, the reference of the tests and of benchmarks/bench_mesh.py; the tree's search
-    runs the same steps on scalars (``_closest_components``)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = ab @ ap, ac @ ap
-    zero = np.zeros(3)
-    if d1 <= 0 and d2 <= 0:
-        return a, 2, zero
-    bp = p - b
-    d3, d4 = ab @ bp, ac @ bp
-    if d3 >= 0 and d4 <= d3:
-        return b, 2, zero
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0 and d1 >= 0 and d3 <= 0:
-        return a + d1 / (d1 - d3) * ab, 1, ab / np.sqrt(ab @ ab)
-    cp = p - c
-    d5, d6 = ab @ cp, ac @ cp
-    if d6 >= 0 and d5 <= d6:
-        return c, 2, zero
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0 and d2 >= 0 and d6 <= 0:
-        return a + d2 / (d2 - d6) * ac, 1, ac / np.sqrt(ac @ ac)
-    va = d3 * d6 - d5 * d4
-    if va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
-        bc = c - b
-        return b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * bc, 1, bc / np.sqrt(bc @ bc)
-    denominator = 1.0 / (va + vb + vc)
-    return a + ab * (vb * denominator) + ac * (vc * denominator), 0, zero
+    Real-Time Collision Detection, 5.1.5), with the edge's direction (unit) for an edge
+    (``_closest_components`` on the three corners)."""
+    corners = np.empty((3, 3))
+    corners[0], corners[1], corners[2] = a, b, c
+    _, qx, qy, qz, feature, edge = _closest_components(p, corners, 0, 1, 2)
+    return np.array([qx, qy, qz]), feature, _edge_direction(corners, 0, 1, 2, edge)
+
+
+@numba.njit(cache=True, inline="always")
+def _edge_direction(vertices, i, j, k, edge):  # pragma: no cover - compiled
+    """The unit direction of the triangle's edge 0 (i to j), 1 (i to k) or 2 (j to k); zero for -1."""
+    if edge < 0:
+        return np.zeros(3)
+    start, stop = (i, j) if edge == 0 else ((i, k) if edge == 1 else (j, k))
+    segment = vertices[stop] - vertices[start]
+    return segment / np.sqrt(segment @ segment)
 
 
 @numba.njit(cache=True, inline="always")
 def _closest_components(p, vertices, i, j, k):  # pragma: no cover - compiled
-    """``closest_on_triangle`` for the triangle of vertices i, j, k on scalars, without an array:
-    (squared distance, closest point x, y, z, feature, edge: 0 ab, 1 ac, 2 bc). The same steps;
-    the search below runs it on every triangle it meets, where the array form's temporaries cost
-    nine tenths of the time."""
+    """Ericson's closest point (``closest_on_triangle``) of the triangle of vertices i, j, k to p, on
+    scalars: (squared distance, closest point x, y, z, feature, edge: 0 ab, 1 ac, 2 bc, -1 none).
+    The search runs it on every triangle it meets, so it allocates nothing (vector temporaries were
+    most of the search's time)."""
     ax, ay, az = vertices[i, 0], vertices[i, 1], vertices[i, 2]
     abx, aby, abz = vertices[j, 0] - ax, vertices[j, 1] - ay, vertices[j, 2] - az
     acx, acy, acz = vertices[k, 0] - ax, vertices[k, 1] - ay, vertices[k, 2] - az
@@ -236,13 +224,13 @@ def nearest_triangle(p, vertices, faces, lower, upper, first, count, children, o
     """(distance, closest point, feature, edge direction, face) of the triangle nearest to p: the
     tree descended nearer box first, boxes farther than the best distance skipped; feature and
     direction as ``closest_on_triangle`` gives them; ties go to the first triangle met."""
-    best, best2, closest, feature, edge, face = np.inf, np.inf, np.zeros(3), 0, -1, -1
+    best, closest, feature, edge, face = np.inf, np.zeros(3), 0, -1, -1
     stack = np.empty(128, np.int64)
     stack[0], top = 0, 1
     while top:
         top -= 1
         node = stack[top]
-        if _box_distance2(p, lower[node], upper[node]) >= best2:
+        if _box_distance2(p, lower[node], upper[node]) >= best * best:
             continue
         if count[node]:
             for k in range(first[node], first[node] + count[node]):
@@ -250,7 +238,7 @@ def nearest_triangle(p, vertices, faces, lower, upper, first, count, children, o
                 d2, qx, qy, qz, kind, which = _closest_components(p, vertices, faces[f, 0], faces[f, 1], faces[f, 2])
                 d = np.sqrt(d2)
                 if d < best:
-                    best, best2, feature, edge, face = d, d * d, kind, which, f
+                    best, feature, edge, face = d, kind, which, f
                     closest[0], closest[1], closest[2] = qx, qy, qz
             continue
         near, far = children[node, 0], children[node, 1]
@@ -258,9 +246,6 @@ def nearest_triangle(p, vertices, faces, lower, upper, first, count, children, o
             near, far = far, near
         stack[top], stack[top + 1] = far, near  # the nearer box popped first
         top += 2
-    direction = np.zeros(3)
-    if feature == 1:
-        ends = ((0, 1), (0, 2), (1, 2))[edge]
-        segment = vertices[faces[face, ends[1]]] - vertices[faces[face, ends[0]]]
-        direction = segment / np.sqrt(segment @ segment)
+    direction = np.zeros(3) if face < 0 else _edge_direction(vertices, faces[face, 0], faces[face, 1],
+                                                             faces[face, 2], edge)
     return best, closest, feature, direction, face

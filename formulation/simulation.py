@@ -66,7 +66,7 @@ from . import dofs
 from .contact import FRICTION_CREEP, LaggedFriction, contact_penalty, lagged_friction
 from .frames import Frames, transport_frames, unit
 from .newton import (ARMIJO, MAX_HALVINGS, MAX_REJECTED, MU_MIN, MU_STATIC, NO_STEP, NON_FINITE,
-                     OUT_OF_STEPS, REBASE_ANGLE, STEP_TOLERANCE, CONVERGED, STAGNATED, TINY_STEP,
+                     OUT_OF_STEPS, REBASE_ANGLE, STAGNATION_STEPS, STEP_TOLERANCE, CONVERGED, STAGNATED, TINY_STEP,
                      length_keeping_step, newton_kernel, outcome_message, stagnated)
 from .problem import Problem
 
@@ -272,7 +272,8 @@ def newton_solve(potential: IncrementalPotential, q: np.ndarray, tol: float = RE
             return q, _ended(record, NON_FINITE, tol, floor, max_steps, mu)
         if residual <= tol:
             return q, _ended(record, CONVERGED, tol, floor, max_steps, mu)
-        if residual <= floor and (tiny_step or stagnated(np.array(record.residuals), len(record.residuals))):
+        recent = np.array(record.residuals[-STAGNATION_STEPS - 1:])  # all that stagnated reads
+        if residual <= floor and (tiny_step or stagnated(recent, recent.size)):
             return q, _ended(record, TINY_STEP if tiny_step else STAGNATED, tol, floor, max_steps, mu)
         if record.steps == max_steps:
             return q, _ended(record, OUT_OF_STEPS, tol, floor, max_steps, mu)

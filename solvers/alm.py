@@ -79,8 +79,8 @@ Scale: a rest-length entry moves c about 1e7 times more than a stiffness multipl
 Converged: |c|_inf <= tol and pi of the gradient of the Lagrangian R + lam^T c is <= its target
     (gradient_tol), confirmed by the KKT distance of contract.optimality <= kkt_tol, the measure
     every solver's status uses. Past its confirmed start, the solve holds c to tol or, where
-    larger, to c's rounding level at the point it starts from (contract.feasibility: 4 x 1.4e-8 on
-    a 5000-vertex strand), which its message then says. Where pi is small but the distance is not
+    larger, to c's rounding level at the point it starts from (contract.feasibility), which its
+    message then says. Where pi is small but the distance is not
     (a flat valley along the bilinear fibres stiffness x (kbar - kappa*)), the target is tightened
     1000-fold (counted as ``tightened``) and the outer loop goes on.
 Newton-SQP: Gauss-Newton omits lam^T c''. Where the internal forces are not fixed by statics (a tip
@@ -150,10 +150,9 @@ Infeasible: for a strand held by its root alone whose rest system is square, the
     the bounds that bind (the blocks and vertices whose relaxation would reduce |c|), so a user knows
     what to relax. Where neither holds (|c|_inf small, no certificate) and |c|_inf has not halved
     over STALLED_TESTS such tests (mu grown 10^5-fold meanwhile), the solve ends max_iterations
-    at once, and a default solve takes its other start: on a 3000-vertex groom strand with a pinned
-    tip the penalty crawled 0.6% of |c| per test, 20 tests and 600 Gauss-Newton steps (11.5 s) to
-    max_iterations; of 104 strands held by a pinned tip, a pin or a head that converged, none took
-    more than 2 tests (benchmarks/RESULTS.md, 2026-12-05, twenty-eighth session).
+    at once, and a default solve takes its other start, where the penalty would crawl on for hundreds
+    of Gauss-Newton steps; no converged held strand measured took more than 2 such tests
+    (benchmarks/RESULTS.md, 2026-12-05, twenty-eighth session).
 The measurements behind these choices are in benchmarks/RESULTS.md.
 """
 from __future__ import annotations

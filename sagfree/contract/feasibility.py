@@ -7,11 +7,10 @@ p_j by its rounding, eps |p_j|, moves c_r by up to
     rounding_r(p) = eps sum_j |dc_r/dp_j| |p_j|,
 
 and c's rows are forces over each vertex's weight, which shrinks as the vertices multiply: on
-root-held groom strands max_r rounding_r grows as n^2 (5e-12 at 100 vertices, 2.2e-9 at 2000,
-1.4e-8 at 5000). Where ROUNDING_MULTIPLE times it exceeds ``tol``, that is the tolerance: with tol =
-1e-8 asc crawled 60 outer iterations (58 s) around |c|_inf = 1.5e-8 on a 5000-vertex groom strand
-whose exact optimum it had started from (benchmarks/RESULTS.md, 2026-12-05). Every solver's status
-applies the same rule, and its message says when the tolerance was raised.
+root-held groom strands max_r rounding_r grows as n^2, past the default tol = 1e-8 at 5000
+vertices. Where ROUNDING_MULTIPLE times it exceeds ``tol``, that is the tolerance: below it a
+solver started at the exact optimum can only crawl (benchmarks/RESULTS.md, 2026-12-05). Every
+solver's status applies the same rule, and its message says when the tolerance was raised.
 """
 from __future__ import annotations
 
@@ -19,9 +18,8 @@ import numpy as np
 
 from sagfree.formulation.problem import Problem
 
-#: The multiple of c's rounding level a feasible point may leave: at the exact optima of root-held groom
-#: strands of 100 to 8000 vertices |c|_inf was at most 1.3 times it; moving p by one ulp moved c by up
-#: to 1.8 times it.
+#: The multiple of c's rounding level a feasible point may leave: moving the exact optimum of a
+#: groom strand by one ulp per entry moved c by up to 1.8 times it.
 ROUNDING_MULTIPLE = 4.0
 
 
