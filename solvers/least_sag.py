@@ -13,22 +13,23 @@ Jacobian follows from the equilibrium itself: f(q_s, p) = 0 gives
     dq_s/dp = K^-1 D dc/dp                                                  (K d^2E/dq^2 at q_s)
 
 with c = D^-1 S f at q_s (``Problem.strand_jacobian(p, q, frames)``): one banded Cholesky of K per
-Jacobian. scipy's trust-region reflective least squares (``least_squares``, method "trf", which
-keeps every iterate inside the box; LSMR for its subproblems, capped at LSMR_ITERATIONS, where the
-exact solver's dense SVD grows like the cube of the size) takes the steps. The Jacobian (3n x
-parameters) is never formed but applied as an operator, each product with it or its transpose one
-pair of band triangular solves, O(n) (``StaticSag.jacobian``): formed, it and its products grow
-like n^2 (at 2000 vertices ~2 GB with its intermediates). The steps are taken in the variables'
-scales of its column norms, which change by orders of magnitude as the multipliers reach their
-bounds; scipy renews scales ("jac") only from a matrix, so the minimization runs in rounds of
-RESCALE_EVALUATIONS evaluations, each in the column norms where it starts, estimated from
-NORM_PROBES random products (``StaticSag.estimated_column_norms``, Hutchinson's estimator, O(n)).
-(With the norms of the start alone the sag stayed twice as large above 400 vertices; the dense
-matrix with scipy's own scales sagged about as little, at n^2 cost: benchmarks/RESULTS.md.)
-Each evaluation continues the equilibrium from the previous one (``equilibrium(start=...)``), so p
-moves along one branch of equilibria; where the continuation fails (CONTINUATION_STEPS Newton
-steps), the step was too long for it and the trust region shrinks. (A restart from q* follows the whole fall: ~7 times the
-Newton steps at 100 vertices.)
+Jacobian, which is never formed but applied, each product with it or its transpose one pair of
+band triangular solves and one sparse product, O(n) (``sag_product``): formed, it and its
+products grow like n^2 (at 2000 vertices ~2 GB with its intermediates).
+
+The steps: trust-region reflective least squares (solvers.reflective: scipy's least_squares method
+"trf", ported, which keeps every iterate strictly inside the box), its Gauss-Newton direction by
+CG_ITERATIONS of conjugate gradients at most, compiled with the products
+(``gauss_newton_direction``; scipy's LSMR ran the same iterations in Python, a Python call per
+product, and with scipy's loop that was 39% of an infeasible strand's time: benchmarks/RESULTS.md). The
+steps are taken in the variables' scales of the Jacobian's column norms, which change by orders of
+magnitude as the multipliers reach their bounds; they are re-estimated every RESCALE_EVALUATIONS
+evaluations where the minimization is, from NORM_PROBES random products
+(``StaticSag.estimated_column_norms``, Hutchinson's estimator, O(n)). Each evaluation continues the last
+equilibrium found (``equilibrium(start=...)``), so p moves along one branch of equilibria; where the
+continuation fails (CONTINUATION_STEPS Newton steps), the step was too long for it and the trust
+region shrinks. (A restart from q* follows the whole fall: ~7 times the Newton steps at 100
+vertices.)
 
 S weighs the whole strand, not only the vertex that moves most: smooth, and a Gauss-Newton problem;
 the reported sag (the largest displacement) falls with it (benchmarks/RESULTS.md). The start is the
@@ -44,15 +45,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-import scipy.optimize
-import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
 from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import Equilibrium, equilibrium
-from sagfree.linalg.cholesky import band_cholesky, band_solve, band_solve_many
+from sagfree.linalg.cholesky import band_cholesky, band_solve_many, plain_solve
+from sagfree.linalg.compressed import csc_matvec, csc_rmatvec
+from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
+
+from .reflective import reflective_least_squares
 
 #: Model evaluations (static solves) the minimization may take: enough for the large early gains,
 #: bounded so that a groom of long hair costs seconds per strand.
@@ -61,10 +65,12 @@ MAX_EVALUATIONS = 60
 VERIFIED = 3
 #: Newton steps of a continued static solve before the step counts as too long.
 CONTINUATION_STEPS = 100
-#: LSMR iterations per trust-region step (scipy's default, min(3n, parameters), grows with the
-#: strand, and made LSMR half of a 400-vertex strand's time; the step only needs a direction better
-#: than the gradient's: capped, the sag was the same or less on the strands measured).
-LSMR_ITERATIONS = 30
+#: Conjugate-gradient iterations of a step's Gauss-Newton direction (``gauss_newton_direction``),
+#: and the relative normal-equations residual that stops them sooner: the step only needs a
+#: direction better than the gradient's (uncapped, scipy's LSMR grew with the strand and was half
+#: of a 400-vertex strand's time; capped at 30, the sag was the same or less on the strands measured).
+CG_ITERATIONS = 30
+CG_TOLERANCE = 1e-6
 #: Evaluations between rescalings (the Jacobian's column norms re-estimated where the minimization is).
 RESCALE_EVALUATIONS = 5
 #: Random sign vectors of StaticSag.estimated_column_norms (Hutchinson's estimator).
@@ -90,7 +96,7 @@ class LeastSag:
 
 
 class StaticSag:
-    """S(p) of the module docstring as scipy least-squares residuals, continuing the equilibrium."""
+    """S(p) of the module docstring as least-squares residuals, continuing the equilibrium."""
 
     def __init__(self, problem: Problem, start: Equilibrium):
         self.problem, self.state, self.at, self.newton = problem, start, None, 0
@@ -114,6 +120,10 @@ class StaticSag:
             self.state, self.at = state, p.copy()
         return state.converged
 
+    def linearization(self, p: np.ndarray) -> "SagLinearization":
+        """The Jacobian at p as solvers.reflective applies it."""
+        return SagLinearization(self.operator(p))
+
     def residuals(self, p: np.ndarray) -> np.ndarray:
         """sqrt(m_i / M) (x_i - x_i*) / L at the equilibrium of p; NaN where none was found (the
         trust region then shrinks)."""
@@ -128,21 +138,18 @@ class StaticSag:
     def jacobian(self, p: np.ndarray) -> LinearOperator:
         """d residuals / dp = W P K^-1 B at the equilibrium of p (W: the residuals' weights, P: the
         position rows, K = d^2E/dq^2 on the free DOFs, B = D dc/dp there) as an operator: a product
-        with it or its transpose is one banded Cholesky solve and one sparse product, O(n)."""
-        factor, scaled = self._linearization(p)
-        moving, rows, weight = self.moving, self.moving_rows, self.moving_weights
-        transposed = scaled.T.tocsr()
+        with it or its transpose is one banded Cholesky solve and one sparse product, O(n)
+        (``sag_product``, ``sag_transposed_product``: the same kernels the trust-region steps run)."""
+        operator = self.operator(p)
+        return LinearOperator((self.positions.size, p.size), matvec=lambda v: sag_product(*operator, np.ravel(v)),
+                              rmatvec=lambda u: sag_transposed_product(*operator, np.ravel(u)), dtype=float)
 
-        def product(v):
-            out = np.zeros(self.positions.size)
-            out[moving] = weight * band_solve(factor, scaled @ np.ravel(v))[rows]
-            return out
-
-        def transposed_product(u):
-            return transposed @ band_solve(factor, self._pulled(np.ravel(u)[moving]))
-
-        return LinearOperator((self.positions.size, p.size), matvec=product, rmatvec=transposed_product,
-                              dtype=float)
+    def operator(self, p: np.ndarray) -> tuple:
+        """The arguments of ``sag_product`` and ``sag_transposed_product`` before the vector: the
+        Jacobian of the residuals at the equilibrium of p, as ``jacobian`` describes it."""
+        factor, (indptr, indices, data) = self._linearization(p)
+        return (factor, indptr, indices, data, self.moving, self.moving_rows, self.moving_weights,
+                self.positions.size, p.size)
 
     def estimated_column_norms(self, p: np.ndarray, probes: int = NORM_PROBES, seed: int = 0) -> np.ndarray:
         """Hutchinson's estimate of the column norms: |J e_j|^2 = E[(J^T v)_j^2] over random signs v
@@ -151,9 +158,10 @@ class StaticSag:
         (O(n^2)).
         Relative error about sqrt(2 / probes) (25% at 32), enough for variable scales that span
         ~1e7 between the blocks."""
-        factor, scaled = self._linearization(p)
+        factor, (indptr, indices, data) = self._linearization(p)
         signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(self.moving.size, probes))
-        products = scaled.T @ band_solve_many(factor, self._pulled(signs))  # (parameters, probes): J^T v
+        solved = band_solve_many(factor, self._pulled(signs))  # (free DOFs, probes)
+        products = _rows_transposed_times(indptr, indices, data, solved, p.size)  # (parameters, probes): J^T v
         return np.sqrt(np.einsum("jk,jk->j", products, products) / probes)
 
     def _pulled(self, values: np.ndarray) -> np.ndarray:
@@ -166,8 +174,9 @@ class StaticSag:
     def _linearization(self, p: np.ndarray):
         """(Cholesky factor of K, B) at the equilibrium of p (continued there if it is not the last
         one): K the free block of the static Hessian, shifted by the mass metric where E has a
-        saddle (as Newton's damping does); B the rows of D dc/dp on the free DOFs (CSR). Kept for
-        the next call at the same p and equilibrium (the column norms, then the first Jacobian)."""
+        saddle (as Newton's damping does); B the rows of D dc/dp on the free DOFs as compressed
+        rows (indptr, indices, data). Kept for the next call at the same p and equilibrium (the
+        column norms, then the steps)."""
         problem = self.problem
         if self.at is None or not np.array_equal(p, self.at):
             self._settle(p)
@@ -183,10 +192,40 @@ class StaticSag:
             shifted = band.copy()
             shifted[0] += shift * masses
             factor = band_cholesky(shifted)
-        jacobian = problem.strand_jacobian(p, state.q, state.frames).tocsc()
-        scaled = (sp.diags(problem.row_scale[free]) @ jacobian).tocsr()
+        rows = problem.strand_jacobian(p, state.q, state.frames).tocsc().tocsr()
+        rows.sort_indices()
+        data = rows.data * np.repeat(problem.row_scale[free], np.diff(rows.indptr))
+        scaled = (rows.indptr.astype(np.int64), rows.indices.astype(np.int64), data)
         self._linearized = (state, p.copy(), factor, scaled)
         return factor, scaled
+
+
+class SagLinearization:
+    """The least-sag Jacobian at a point (StaticSag.operator's arguments) as solvers.reflective
+    applies it: products, transposed products, the Gauss-Newton direction."""
+
+    def __init__(self, operator: tuple):
+        self.operator = operator
+
+    def product(self, v: np.ndarray) -> np.ndarray:
+        return sag_product(*self.operator, v)
+
+    def transposed_product(self, u: np.ndarray) -> np.ndarray:
+        return sag_transposed_product(*self.operator, u)
+
+    def direction(self, d: np.ndarray, damping: np.ndarray, f: np.ndarray) -> np.ndarray:
+        return gauss_newton_direction(*self.operator, d, damping, f)
+
+
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) the least sag's kernels on a two-row system, with the
+    argument types of a strand's: only a strand the boxes cannot balance runs them, and
+    frontend.warm calls this before any timed solve."""
+    indptr, indices, data, rows = np.array([0, 1, 2]), np.array([0, 1]), np.ones(2), np.arange(2)
+    operator = (np.ones((2, 2)), indptr, indices, data, rows, rows, np.ones(2), 2, 2)
+    sag_transposed_product(*operator, sag_product(*operator, np.ones(2)))
+    gauss_newton_direction(*operator, np.ones(2), np.ones(2), np.ones(2))
+    _rows_transposed_times(indptr, indices, data, np.ones((2, 1)), 2)
 
 
 def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUATIONS) -> LeastSag:
@@ -200,21 +239,8 @@ def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUA
     if not (start.converged or naive.converged):
         return LeastSag(p, start, start, naive, 0, 0)
     model = StaticSag(problem, start if start.converged else naive)
-    evaluations, x = 0, p
-    while evaluations < max_evaluations:  # runs of RESCALE_EVALUATIONS, each in the column norms where it starts
-        norms = model.estimated_column_norms(x)
-        try:
-            run = scipy.optimize.least_squares(
-                model.residuals, x, jac=model.jacobian, bounds=(lower, upper), method="trf",
-                x_scale=1.0 / np.where(norms > 0, norms, 1.0), tr_solver="lsmr",
-                tr_options={"maxiter": LSMR_ITERATIONS}, max_nfev=min(RESCALE_EVALUATIONS, max_evaluations - evaluations))
-        except ValueError:  # no equilibrium found at the start itself ("residuals are not finite")
-            evaluations += 1
-            break
-        evaluations += int(run.nfev)
-        if np.array_equal(run.x, x):
-            break  # no step taken: a rescaling would not move it
-        x = run.x
+    evaluations = reflective_least_squares(model.residuals, model.linearization, model.estimated_column_norms, p,
+                                           lower, upper, max_evaluations, RESCALE_EVALUATIONS).evaluations
     best, rest = p, start
     for _, candidate in sorted(model.visited, key=lambda visit: visit[0])[:VERIFIED]:
         candidate = np.clip(candidate, lower, upper)
@@ -224,3 +250,104 @@ def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUA
             best, rest = candidate, settled
             break
     return LeastSag(best, rest, start, naive, evaluations, model.newton)
+
+
+@timed(LINEAR_ALGEBRA)
+def sag_product(factor, indptr, indices, data, moving, rows, weights, size, columns, v) -> np.ndarray:
+    """J v for the least-sag Jacobian J = W P K^-1 B (StaticSag.jacobian; the arguments of
+    StaticSag.operator): one band solve and one sparse product."""
+    return _product(factor, indptr, indices, data, moving, rows, weights, size, np.ascontiguousarray(v, dtype=float))
+
+
+@timed(LINEAR_ALGEBRA)
+def sag_transposed_product(factor, indptr, indices, data, moving, rows, weights, size, columns, u) -> np.ndarray:
+    """J^T u for the least-sag Jacobian (``sag_product``)."""
+    return _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns,
+                               np.ascontiguousarray(u, dtype=float))
+
+
+@numba.njit(cache=True)
+def _product(factor, indptr, indices, data, moving, rows, weights, size, v):  # pragma: no cover - compiled
+    """J v (sag_product): B in compressed rows, K by its Cholesky factor."""
+    solved = np.empty(factor.shape[0])
+    plain_solve(factor, csc_rmatvec(indptr, indices, data, v), solved)  # B v: the rows as csc columns of B^T
+    out = np.zeros(size)
+    for i in range(moving.size):
+        out[moving[i]] = weights[i] * solved[rows[i]]
+    return out
+
+
+@numba.njit(cache=True)
+def _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, u):  # pragma: no cover
+    """J^T u (sag_transposed_product): B^T K^-1 P^T W u."""
+    pulled = np.zeros(factor.shape[0])
+    for i in range(moving.size):
+        pulled[rows[i]] = weights[i] * u[moving[i]]
+    solved = np.empty(factor.shape[0])
+    plain_solve(factor, pulled, solved)
+    return csc_matvec(indptr, indices, data, solved, columns)  # B^T: the rows as csc columns of B^T
+
+
+@timed(LINEAR_ALGEBRA)
+def gauss_newton_direction(factor, indptr, indices, data, moving, rows, weights, size, columns, d, damping,
+                           f) -> np.ndarray:
+    """An approximate minimizer of |J diag(d) p + f|^2 + |damping^(1/2) p|^2 for the least-sag
+    Jacobian J (``sag_product``): CG_ITERATIONS of conjugate gradients on its normal equations at
+    most (``_cgls``), the trust region's Gauss-Newton direction (solvers.reflective)."""
+    return _cgls(factor, indptr, indices, data, moving, rows, weights, size, columns, d, np.sqrt(damping), f,
+                 CG_ITERATIONS, CG_TOLERANCE)
+
+
+@numba.njit(cache=True)
+def _cgls(factor, indptr, indices, data, moving, rows, weights, size, columns, d, root, f, iterations,
+          tolerance):  # pragma: no cover - compiled
+    """CGLS (conjugate gradients on A^T A p = A^T b without forming A^T A; Hestenes & Stiefel 1952)
+    for min |A p - b|, A = [J diag(d); diag(root)], b = [-f; 0], from p = 0: at most ``iterations``,
+    stopped where |A^T r| falls below ``tolerance`` of its start."""
+    n = d.size
+    p, direction, top_step = np.zeros(n), np.empty(n), np.empty(n)
+    top, bottom = -f.copy(), np.zeros(n)
+    pulled = _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, top)
+    gradient = np.empty(n)
+    for j in range(n):
+        gradient[j] = d[j] * pulled[j]
+        direction[j] = gradient[j]
+    gamma = np.dot(gradient, gradient)
+    stop = tolerance * tolerance * gamma
+    for _ in range(iterations):
+        if not gamma > stop:
+            break
+        for j in range(n):
+            top_step[j] = d[j] * direction[j]
+        image = _product(factor, indptr, indices, data, moving, rows, weights, size, top_step)
+        curvature = np.dot(image, image)
+        for j in range(n):
+            curvature += (root[j] * direction[j]) ** 2
+        if not curvature > 0:
+            break
+        alpha = gamma / curvature
+        for j in range(n):
+            p[j] += alpha * direction[j]
+            bottom[j] -= alpha * root[j] * direction[j]
+        for i in range(top.size):
+            top[i] -= alpha * image[i]
+        pulled = _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, top)
+        for j in range(n):
+            gradient[j] = d[j] * pulled[j] + root[j] * bottom[j]
+        previous, gamma = gamma, np.dot(gradient, gradient)
+        for j in range(n):
+            direction[j] = gradient[j] + gamma / previous * direction[j]
+    return p
+
+
+@numba.njit(cache=True)
+def _rows_transposed_times(indptr, indices, data, x, columns):  # pragma: no cover - compiled
+    """B^T X for B in compressed rows and X (rows of B x k)."""
+    k = x.shape[1]
+    out = np.zeros((columns, k))
+    for r in range(indptr.size - 1):
+        for t in range(indptr[r], indptr[r + 1]):
+            j, entry = indices[t], data[t]
+            for c in range(k):
+                out[j, c] += entry * x[r, c]
+    return out

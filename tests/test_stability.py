@@ -219,6 +219,34 @@ def test_least_sag_through_the_operator(long_strand):
     assert problem.stability(effort.p, q=effort.rest.q, frames=effort.rest.frames) >= problem.stability_margin
 
 
+def test_gauss_newton_direction_solves_the_regularized_least_squares(long_strand):
+    """The trust region's Gauss-Newton direction on the least-sag operator (compiled CGLS,
+    least_sag._cgls): the transposed product is the dense matrix's, and on a few scaled columns
+    (conjugate gradients are exact in as many iterations) the direction is the dense solution of
+    min |J diag(d) p + f|^2 + |damping^(1/2) p|^2; columns with d = 0 stay at zero."""
+    from sagfree.solvers import least_sag
+
+    problem = sagfree.Problem(long_strand)
+    p = stiffest(problem, problem.p0)
+    model = StaticSag(problem, equilibrium(problem, p))
+    residuals = model.residuals(p)
+    operator = model.operator(p)
+    dense = np.array([least_sag.sag_product(*operator, column) for column in np.eye(p.size)]).T
+    pulled = least_sag.sag_transposed_product(*operator, residuals)
+    np.testing.assert_allclose(pulled, dense.T @ residuals, rtol=0, atol=1e-9 * np.abs(pulled).max())
+    rng = np.random.default_rng(2)
+    norms = np.linalg.norm(dense, axis=0)
+    chosen = rng.choice(np.flatnonzero(norms > 0), 8, replace=False)
+    d = np.zeros(p.size)
+    d[chosen] = np.exp(rng.uniform(-2, 2, chosen.size)) / norms[chosen]
+    damping = np.full(p.size, 1e-3)
+    direction = least_sag._cgls(*operator, d, np.sqrt(damping), residuals, 50, 1e-14)
+    scaled = dense * d
+    exact = np.linalg.solve(scaled.T @ scaled + np.diag(damping), -scaled.T @ residuals)
+    np.testing.assert_allclose(direction, exact, rtol=1e-6, atol=1e-9 * np.abs(exact).max())
+    assert np.all(direction[d == 0] == 0)
+
+
 def test_least_sag_without_a_converged_static_solve_keeps_its_start(long_strand, monkeypatch):
     """Where neither the start's static solve nor p0's converges there is no equilibrium to
     continue from: the start comes back at once, no minimization step taken, and the Result says

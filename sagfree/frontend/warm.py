@@ -34,7 +34,7 @@ from sagfree.formulation.simulation import equilibrium, sag_check
 from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
 from sagfree.linalg import cholesky
-from sagfree.solvers import interior_point
+from sagfree.solvers import interior_point, least_sag
 from sagfree.solvers.statics_start import unbalanceable
 
 from .priming import primed_in_child
@@ -158,6 +158,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     _WARM.add(key)
     _quietly(interior_point.compile_kernels)
     _quietly(cholesky.compile_kernels)
+    _quietly(least_sag.compile_kernels)
     entry = solver_entry(solver)
     _quietly(_solve_warm_strand, entry, solver_options, problem_options or {}, paths)
     release_linking_ir()  # the loaded kernels' IR, which only compiles of their callers read
