@@ -53,6 +53,7 @@ stiffness EA is ~1e10 times its vertex weight per metre: rounding alone leaves r
 from __future__ import annotations
 
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -205,14 +206,27 @@ class IncrementalPotential:
         return band
 
 
+#: per-Problem constants of newton_scales and roundoff_floor (forgotten with their Problem)
+_FIXED_SCALES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_ROUNDOFF_GEOMETRY: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def newton_scales(problem: Problem, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Per free DOF: the residual scale D, the Levenberg-Marquardt metric M and the step tolerance
     (STEP_TOLERANCE L on positions, STEP_TOLERANCE rad on angles); and the round-off floor."""
-    free = problem.free_index
-    limit = np.full(problem.q_star.size, STEP_TOLERANCE * problem.strand.length)
-    limit[dofs.theta_index(problem.n_vertices)] = STEP_TOLERANCE
-    return (problem.row_scale[free], generalized_masses(problem)[free], limit[free],
-            roundoff_floor(problem, p))
+    return (*_fixed_scales(problem), roundoff_floor(problem, p))
+
+
+def _fixed_scales(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The p-independent part of ``newton_scales`` (D, M, the step tolerance), made once per
+    Problem (a strand's best effort runs hundreds of static solves); do not modify."""
+    known = _FIXED_SCALES.get(problem)
+    if known is None:
+        free = problem.free_index
+        limit = np.full(problem.q_star.size, STEP_TOLERANCE * problem.strand.length)
+        limit[dofs.theta_index(problem.n_vertices)] = STEP_TOLERANCE
+        known = _FIXED_SCALES[problem] = (problem.row_scale[free], generalized_masses(problem)[free], limit[free])
+    return known
 
 
 def roundoff_floor(problem: Problem, p: np.ndarray) -> float:
@@ -223,12 +237,24 @@ def roundoff_floor(problem: Problem, p: np.ndarray) -> float:
     over the edges at each vertex and divided by its weight D_i. About 1e-6 for `horizontal` (30
     vertices, 10 cm), growing like n^2 (4e-4 for a 400-vertex groom strand).
     """
-    strand = problem.strand
-    stiffness = problem.physical(p)["stretch_modulus"] * np.pi * strand.radius**2 / problem.edge_lengths
-    at_vertex = np.r_[stiffness, 0.0] + np.r_[0.0, stiffness]
-    reach = np.abs(strand.points).max() + strand.length
-    weight = problem.row_scale[dofs.position_index(problem.n_vertices)[:, 0]]
+    squared_radius, reach, weight = _roundoff_geometry(problem)
+    modulus = problem.layout.edge_map.evaluate(problem.check_parameters(p))[:, 1]
+    stiffness = modulus * np.pi * squared_radius / problem.edge_lengths
+    at_vertex = np.zeros(stiffness.size + 1)
+    at_vertex[:-1] += stiffness
+    at_vertex[1:] += stiffness
     return float(2.0 * np.finfo(float).eps * reach * np.max(at_vertex / weight))
+
+
+def _roundoff_geometry(problem: Problem) -> tuple[np.ndarray, float, np.ndarray]:
+    """(r^2, X, D on each vertex's x row) of ``roundoff_floor``, made once per Problem."""
+    known = _ROUNDOFF_GEOMETRY.get(problem)
+    if known is None:
+        strand = problem.strand
+        known = _ROUNDOFF_GEOMETRY[problem] = (
+            strand.radius**2, float(np.abs(strand.points).max() + strand.length),
+            problem.row_scale[dofs.position_index(problem.n_vertices)[:, 0]])
+    return known
 
 
 def generalized_masses(problem: Problem) -> np.ndarray:

@@ -72,7 +72,8 @@ def reflective_least_squares(residuals: Callable[[np.ndarray], np.ndarray],
     scale, since = _scales(column_norms(x)), 0
     v, dv = cl_scaling_vector(x, g, lower, upper)
     v[dv != 0] /= scale[dv != 0]
-    radius = float(np.linalg.norm(x / scale / v**0.5)) or 1.0
+    held = v == 0  # lower == upper: a fixed variable never moves (scipy refuses such bounds)
+    radius = float(np.linalg.norm(x[~held] / scale[~held] / v[~held] ** 0.5)) or 1.0
     status = None
     while True:
         v, dv = cl_scaling_vector(x, g, lower, upper)

@@ -62,3 +62,16 @@ def test_reflective_least_squares_reaches_scipys_minimum(upper):
     assert ours.cost == pytest.approx(scipys.cost, rel=1e-6, abs=1e-12)
     np.testing.assert_allclose(ours.x, scipys.x, atol=1e-5)
     assert all(np.all((x >= lower) & (x <= upper)) for x in visited)
+
+
+def test_a_variable_with_equal_bounds_stays_where_it_is(recwarn):
+    """lower == upper (a parameter a user fixed): scipy refuses such bounds; here the variable
+    keeps its value, the others are minimized, and nothing divides by its zero distance."""
+    x0 = np.array([-1.2, 1.0, -0.5, 0.8, 0.3, -0.9])
+    lower, upper = np.full(x0.size, -2.0), np.full(x0.size, 2.0)
+    lower[2] = upper[2] = x0[2]
+    ours = reflective_least_squares(rosenbrock, lambda x: DenseLinearization(rosenbrock_jacobian(x)),
+                                    lambda x: np.linalg.norm(rosenbrock_jacobian(x), axis=0), x0, lower, upper,
+                                    max_evaluations=500, rescale_every=10**9)
+    assert ours.x[2] == x0[2] and ours.status > 0 and ours.cost < 0.5 * float(rosenbrock(x0) @ rosenbrock(x0))
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
