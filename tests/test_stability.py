@@ -247,6 +247,20 @@ def test_gauss_newton_direction_solves_the_regularized_least_squares(long_strand
     assert np.all(direction[d == 0] == 0)
 
 
+def test_least_sag_with_a_fixed_parameter_block(long_strand):
+    """Bounds that fix a block (stretch stiffness at 1: lower == upper) leave the others to minimize
+    over: scipy's least_squares refused such bounds, and the least sag stopped at its start."""
+    from sagfree.solvers import least_sag
+
+    problem = sagfree.Problem(long_strand, bounds={"stretch_stiffness": (1, 1)})
+    start = stiffest(problem, problem.p0)
+    effort = least_sag.least_sag(problem, start)
+    assert effort.evaluations > least_sag.RESCALE_EVALUATIONS and effort.rest.converged
+    fixed = problem.lower == problem.upper
+    assert fixed.any() and np.array_equal(effort.p[fixed], start[fixed])
+    assert effort.rest.relative_sag < 0.5 * effort.start.relative_sag
+
+
 def test_least_sag_without_a_converged_static_solve_keeps_its_start(long_strand, monkeypatch):
     """Where neither the start's static solve nor p0's converges there is no equilibrium to
     continue from: the start comes back at once, no minimization step taken, and the Result says
