@@ -17,19 +17,19 @@ Jacobian, which is never formed but applied, each product with it or its transpo
 band triangular solves and one sparse product, O(n) (``sag_product``): formed, it and its
 products grow like n^2 (at 2000 vertices ~2 GB with its intermediates).
 
-The steps: trust-region reflective least squares (solvers.reflective: scipy's least_squares method
-"trf", ported, which keeps every iterate strictly inside the box), its Gauss-Newton direction by
-CG_ITERATIONS of conjugate gradients at most, compiled with the products
+The steps: trust-region reflective least squares (solvers.reflective: scipy's least_squares
+method "trf", ported, which keeps every iterate strictly inside the box), its Gauss-Newton
+direction by CG_ITERATIONS of conjugate gradients at most, compiled with the products
 (``gauss_newton_direction``; scipy's LSMR ran the same iterations in Python, a Python call per
-product, and with scipy's loop that was 39% of an infeasible strand's time: benchmarks/RESULTS.md). The
-steps are taken in the variables' scales of the Jacobian's column norms, which change by orders of
-magnitude as the multipliers reach their bounds; they are re-estimated every RESCALE_EVALUATIONS
-evaluations where the minimization is, from NORM_PROBES random products
-(``StaticSag.estimated_column_norms``, Hutchinson's estimator, O(n)). Each evaluation continues the last
-equilibrium found (``equilibrium(start=...)``), so p moves along one branch of equilibria; where the
-continuation fails (CONTINUATION_STEPS Newton steps), the step was too long for it and the trust
-region shrinks. (A restart from q* follows the whole fall: ~7 times the Newton steps at 100
-vertices.)
+product, and with scipy's loop that was 39% of an infeasible strand's time: benchmarks/RESULTS.md).
+The steps are taken in the variables' scales of the Jacobian's column norms, which change by orders
+of magnitude as the multipliers reach their bounds; they are re-estimated every
+RESCALE_EVALUATIONS evaluations where the minimization is, from NORM_PROBES random products
+(``StaticSag.estimated_column_norms``, Hutchinson's estimator, O(n)). Each evaluation continues the
+last equilibrium found (``equilibrium(start=...)``), so p moves along one branch of equilibria;
+where the continuation fails (CONTINUATION_STEPS Newton steps), the step was too long for it and
+the trust region shrinks. (A restart from q* follows the whole fall: ~7 times the Newton steps at
+100 vertices.)
 
 S weighs the whole strand, not only the vertex that moves most: smooth, and a Gauss-Newton problem;
 the reported sag (the largest displacement) falls with it (benchmarks/RESULTS.md). The start is the
