@@ -31,7 +31,7 @@ from sagfree.linalg.cholesky import factor_active, plain_solve
 from sagfree.linalg.pairwise import pairwise_sum
 
 from .at_rest import call_into, hessian_band
-from .bodies import Capsule, Mesh, Sphere, _mesh_distance, _round
+from .bodies import Capsule, Mesh, Sphere, _capsule_distance, _mesh_distance, _round
 from .frames import _transported
 from .parameters import evaluate_slots
 
@@ -196,27 +196,7 @@ def _body_distance(x, kind, parameters, mesh):  # pragma: no cover - compiled
         return _round(x - parameters[:3], parameters[3])
     if kind == MESH:
         return _mesh_distance(x, *mesh)
-    a, b = parameters[:3], parameters[3:6]  # a capsule (bodies.Capsule._evaluate)
-    axis = b - a
-    length2 = np.dot(axis, axis)
-    s, offset = np.empty(x.shape[0]), np.empty(x.shape)
-    for i in range(x.shape[0]):
-        along = 0.0
-        for c in range(3):
-            along += (x[i, c] - a[c]) * axis[c]
-        s[i] = min(max(along / length2, 0.0), 1.0)
-        for c in range(3):
-            offset[i, c] = x[i, c] - (a[c] + s[i] * axis[c])
-    phi, n, K = _round(offset, parameters[6])
-    t = axis / np.sqrt(length2)
-    for i in range(x.shape[0]):
-        if 0.0 < s[i] < 1.0:  # along the cylinder the distance does not change
-            distance = np.sqrt(offset[i, 0] ** 2 + offset[i, 1] ** 2 + offset[i, 2] ** 2)
-            distance = distance if distance > 0 else 1.0
-            for c in range(3):
-                for e in range(3):
-                    K[i, c, e] -= t[c] * t[e] / distance
-    return phi, n, K
+    return _capsule_distance(x, parameters[:3], parameters[3:6], parameters[6])
 
 
 @numba.njit(cache=True)
