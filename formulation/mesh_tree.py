@@ -2,8 +2,8 @@
 
 bodies.Mesh measures, at each point, the exact distance to its nearest triangle and the generalized
 winding number (Jacobson et al. 2013) whose value, 1 inside and 0 outside, signs it. Over every
-triangle that is O(F) per point: with a 20,480-triangle head, building one strand's Problem (its
-contacts) took 0.9 s, and a groom's forward checks were out of reach. Here the triangles are
+triangle that is O(F) per point, which put scanned heads of tens of thousands of triangles out of
+reach (benchmarks/bench_mesh.py measures both). Here the triangles are
 sorted into a binary tree of axis-aligned boxes (split at the median centroid of the longest axis,
 LEAF triangles per leaf), and
 

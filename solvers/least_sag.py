@@ -21,7 +21,7 @@ The steps: trust-region reflective least squares (solvers.reflective: scipy's le
 method "trf", ported, which keeps every iterate strictly inside the box), its Gauss-Newton
 direction by CG_ITERATIONS of conjugate gradients at most, compiled with the products
 (``gauss_newton_direction``; scipy's LSMR ran the same iterations in Python, a Python call per
-product, and with scipy's loop that was 39% of an infeasible strand's time: benchmarks/RESULTS.md).
+product: benchmarks/RESULTS.md, 2026-12-05).
 The steps are taken in the variables' scales of the Jacobian's column norms, which change by orders
 of magnitude as the multipliers reach their bounds; they are re-estimated every
 RESCALE_EVALUATIONS evaluations where the minimization is, from NORM_PROBES random products
@@ -67,8 +67,7 @@ VERIFIED = 3
 CONTINUATION_STEPS = 100
 #: Conjugate-gradient iterations of a step's Gauss-Newton direction (``gauss_newton_direction``),
 #: and the relative normal-equations residual that stops them sooner: the step only needs a
-#: direction better than the gradient's (uncapped, scipy's LSMR grew with the strand and was half
-#: of a 400-vertex strand's time; capped at 30, the sag was the same or less on the strands measured).
+#: direction better than the gradient's, and uncapped the iterations grow with the strand.
 CG_ITERATIONS = 30
 CG_TOLERANCE = 1e-6
 #: Evaluations between rescalings (the Jacobian's column norms re-estimated where the minimization is).

@@ -212,7 +212,7 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     reach it), a stabilization round taken from its optimum (the warm-up strand is stable, and
     the round's kernels, floor_steps, otherwise compile or load in the first stabilized strand of
     each worker of a batch) and one Newton step of its static solve (formulation.newton: the best
-    effort of an infeasible strand settles it, 76 ms of loading in the first one otherwise)."""
+    effort of an infeasible strand settles it, and would load it inside the first one's time)."""
     problem = _solved_along(entry, solver_options, problem_options, ({}, *(entry.warm_paths if paths else ())))
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
     equilibrium(problem, problem.p0, max_steps=1)
