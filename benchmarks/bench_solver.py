@@ -21,8 +21,10 @@ Prints three tables (and 2b), all measured in this run; a count of 0 skips its t
    stability of its Result) and per vertex (flat = linear growth), the mean ``Result.time`` (the
    solve alone: solvers are compared on it), Gauss-Newton, SQP and Newton-SQP steps, QP
    factorizations per Gauss-Newton step, converged and stable; 2b. the same with the strands' tips
-   pinned (``--pinned-strands`` of them per size): a strand held at both ends runs asc's outer
-   loop and, when long, Newton-SQP, where the root-held ones are confirmed at their start;
+   pinned (``--pinned-strands`` of them per size): a strand held at both ends starts at the
+   optimum over its tip's reaction (solvers/reaction_start.py: a search over 3 unknowns whose
+   values of Phi the column ``Phi values`` counts), which asc confirms as it does a root-held
+   strand's start;
 3. the preconditioner ablation on a subset: active-set Cholesky vs Jacobi vs none, with CG
    iterations, expansions, factorizations, time and the ratio to the active-set Cholesky, along
    the Gauss-Newton path (``start="linear"``: from the statics start a root-held strand needs no QP).
@@ -142,11 +144,12 @@ def groom_table(strands: int, vertices: int, jobs: int, before: str, repeats: in
 
 def size_table(sizes, strands: int, tip: str | None = None, title: str = "2.") -> None:
     """The size table: ``strands`` groom strands per size, held by their root alone or (``tip``)
-    with that tip attachment too, whose solves run asc's outer loop (Newton-SQP on long ones)."""
+    with that tip attachment too (a pinned tip: the search over its reaction, whose values of Phi
+    the table counts)."""
     held = f", tips {tip}" if tip else ""
     print(f"\n{title} time per strand against strand size ({strands} groom strands per size{held}, one core)")
     print(f"   {'vertices':>8} {'ms/strand':>10} {'us/vertex':>10} {'solve ms':>9} {'GN steps':>9} {'SQP':>5} "
-          f"{'Newton':>7} {'factor./GN':>11} {'converged':>10} {'stable':>7}")
+          f"{'Newton':>7} {'factor./GN':>11} {'Phi values':>11} {'converged':>10} {'stable':>7}")
     notes = []  # warnings (the radius above an edge length of some long groom strands), after the table
     for n in sizes:
         groom = sagfree.scenes.groom(strands, n, seed=0)
@@ -163,11 +166,12 @@ def size_table(sizes, strands: int, tip: str | None = None, title: str = "2.") -
         solve = np.mean([r.time for r in results])
         steps = np.mean([r.iterations.get("gauss_newton", 0) for r in results])
         factorizations = np.mean([r.iterations.get("factorizations", 0) for r in results])
-        sqp, newton = (np.mean([r.iterations.get(k, 0) for r in results]) for k in ("sqp", "newton_sqp"))
+        sqp, newton, values = (np.mean([r.iterations.get(k, 0) for r in results])
+                               for k in ("sqp", "newton_sqp", "reaction_values"))
         ok = sum(r.status == "converged" for r in results)
         stable = sum(bool(r.stable) for r in results)
         print(f"   {n:8d} {t * 1e3:10.1f} {t / n * 1e6:10.1f} {solve * 1e3:9.1f} {steps:9.1f} {sqp:5.1f} {newton:7.1f} "
-              f"{factorizations / max(steps, 1):11.1f} "
+              f"{factorizations / max(steps, 1):11.1f} {values:11.0f} "
               f"{ok:>6}/{len(results)} {stable:>7}", flush=True)
     for note in dict.fromkeys(notes):
         print(f"   ({note})")

@@ -2,9 +2,11 @@
 
     python benchmarks/study_held_starts.py [--sizes 30,100,400] [--strands 10] [--jobs N]
 
-asc begins a strand with a pinned tip or pins at p0 and one held by its root alone (or with a
-clamped tip) at the linear start; a default solve that ends ``max_iterations`` begins again from the
-other start (solvers/alm.py, Start). This study solves, per size and seed 0, 1, 2, groom strands
+asc begins a strand with a pinned tip or pins at the optimum over the held points' reactions
+(solvers/reaction_start.py; at p0 where that search does not apply, as with a clamped tip, or finds
+none) and one held by its root alone at the linear start; a default solve that ends
+``max_iterations`` begins again from the other start (solvers/alm.py, Start). This study solves,
+per size and seed 0, 1, 2, groom strands
 with one pin at the middle vertex and with two pins at the thirds (``--strands`` per seed, 4 at 400
 vertices and more), and ``horizontal(n)`` and ``cable(n)`` strands pinned at the middle, three ways:
 the default, from the linear start alone (``start="linear"``) and from p0 alone (``start="p0"``),

@@ -45,18 +45,23 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     the check fails, the outer loop polishes. With bodies,
     from p0: the same step with the supports (clipped at zero where it pulled) left the rest shape
     to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
-    Lagrangian then lost feasibility from it. With a pinned tip, from p0 too: from the linear start
-    asc ended at other KKT points or crawled (horizontal(n=100, tip="pinned"): R 0.49 after
-    stabilization against Ipopt's 6.8e-5), where from p0 it reaches Ipopt's optimum in a few
-    Gauss-Newton steps. Pins hold points too, and start from p0 as well: from the linear start, 17
-    of 60 groom strands pinned at their middle vertex ended max_iterations, none from p0 (benchmarks/
+    Lagrangian then lost feasibility from it. A strand held at points besides its root (a pinned
+    tip, pins) starts at the optimum over those points' reactions (solvers.reaction_start: the
+    root-held decomposition with k = 3 per point more unknowns, searched by Nelder-Mead), which asc
+    confirms as it does a root-held start: from p0 or the linear start the augmented Lagrangian
+    crawled at feasible non-KKT points or stopped at worse optima (groom strands pinned at their
+    middle vertex, 400 vertices: 4 of 20 max_iterations; a pinned tip from 3000 vertices on).
+    Where that search does not apply or finds no reaction the boxes admit, those strands start
+    from p0: from the linear start asc ended at other KKT points or crawled more often there
+    (horizontal(n=100, tip="pinned"): R 0.49 after stabilization against Ipopt's 6.8e-5; 17 of 60
+    groom strands pinned at their middle vertex ended max_iterations, none from p0: benchmarks/
     RESULTS.md, 2026-12-05, twenty-sixth session). A clamped tip keeps the linear start, from which
     asc reaches the optimum there more closely (benchmarks/RESULTS.md, 2026-12-03). A default solve
     that ends max_iterations all the same begins again from the other start (p0 after the linear
-    start, the linear start after p0) with what is left of max_iterations and max_seconds, and
-    answers with that solve if it converges (its message says so; the counts and the time are both
-    solves'): on longer strands held at two points, each start converges on some strands where the
-    other crawls. The first
+    start or the reaction search, the linear start after p0) with what is left of max_iterations
+    and max_seconds, and answers with that solve if it converges (its message says so; the counts
+    and the time are both solves'): on longer strands held at two points, each start converges on
+    some strands where the other crawls. The first
     inner solve is loose (omega0 = 1). An outer iteration whose inner solve took no step only
     tightens omega, by as many factors of 10 as it takes to fall below the current pi (one factor
     per outer iteration repeated the same test at the same p: 10.9 -> 6.4 outer iterations per
@@ -185,6 +190,7 @@ from .multipliers import least_squares_multipliers
 from .outer_loop import (CRAWL_ROUNDS, MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS,
                          NEWTON_NEAR, NEWTON_STEPS, SQP_DECREASE, feasibility_cost)
 from .confirmed_start import confirmed_start
+from .reaction_start import applies as reaction_applies, reaction_start
 from .statics_start import square_rest_system, statics_start, unbalanceable
 
 STALLED_VIOLATION = 1e-3  # |c|_inf above which a penalty of 1e4 mu0 hands over to least_residual
@@ -239,11 +245,12 @@ def solve_alm(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL, max_
     stopping test, before the KKT distance confirms). max_outer: augmented Lagrangian iterations.
     mu0, mu_growth, omega0: the penalty's floor and growth, the first inner target. preconditioner:
     "cholesky" (active-set Cholesky), "jacobi" or "none". qp_rtol: relative tolerance of the box
-    QPs. start: "auto" starts per-element stiffness from linear_start (from p0 with bodies, a
-    pinned tip or pins: module docstring, Start), which for a strand held by its root alone is the
-    optimum (solvers.statics_start), and where that solve ends max_iterations, from the other of
-    the two; "linear" the same without that last step (the least rest change spread into the boxes:
-    the Gauss-Newton loop's own path, for comparisons and tests; p0 with bodies) and without the
+    QPs. start: "auto" starts per-element stiffness from linear_start, which for a strand held by
+    its root alone is the optimum (solvers.statics_start), from the optimum over the held points'
+    reactions for a pinned tip or pins (solvers.reaction_start; p0 where it finds none), from p0
+    with bodies (module docstring, Start), and where that solve ends max_iterations, from the
+    other start; "linear" the least rest change spread into the boxes without those last steps (the
+    Gauss-Newton loop's own path, for comparisons and tests; p0 with bodies) and without the
     second start; "p0" from p0 alone.
     """
     if start not in ("auto", "linear", "p0"):
@@ -273,28 +280,31 @@ def zero_counts() -> dict[str, int]:
     """asc's Result.iterations before a solve: every kind it counts, at zero, in its order."""
     return dict(outer=0, gauss_newton=0, cg=0, expansion=0, proportioning=0, active_set=0, interior=0,
                 factorizations=0, factored_rows=0, line_search=0, corrected=0, sqp=0, tightened=0, least_residual=0,
-                newton_sqp=0)
+                newton_sqp=0, reaction_values=0)
 
 
 def _other_start(problem: Problem) -> str | None:
     """The start a default solve (start "auto") that ended max_iterations tries next: p0 after the
     linear start, the linear start after p0 where it applies, else None."""
-    if _resolved_start(problem, "auto") != "p0":
+    first = _resolved_start(problem, "auto")
+    if first != "p0" and (first != "reaction" or reaction_start(problem) is not None):
         return "p0"
     return "linear" if _resolved_start(problem, "linear") == "linear" else None
 
 
 def _resolved_start(problem: Problem, start: str) -> str:
     """Where a solve with option ``start`` begins: "p0", "linear" (the least rest change spread into
-    the boxes) or "auto" (the same, at the statics optimum where it applies), by the rule of the
-    module docstring (Start). The linear start needs per-element stiffness to spread into and no
-    bodies (whose supports it would clip); "auto" begins at p0 where the strand is held at a point
-    besides its root (a pinned tip, pins)."""
+    the boxes), "auto" (the same, at the statics optimum where it applies) or "reaction" (the optimum
+    over the held points' reactions, solvers.reaction_start; p0 where that search finds none), by
+    the rule of the module docstring (Start). The linear start needs per-element stiffness to spread
+    into and no bodies (whose supports it would clip); "auto" begins at the reaction search where the
+    strand is held at a point besides its root (a pinned tip, pins) and that applies, else at p0
+    there."""
     if (start == "p0" or problem.layout.stiffness != "element" or CONTACT_BLOCK in problem.blocks
             or not any(b in problem.blocks for b in STIFFNESS_BLOCKS)):
         return "p0"
     if start == "auto" and (problem.strand.tip == "pinned" or len(problem.strand.pins)):
-        return "p0"
+        return "reaction" if reaction_applies(problem) else "p0"
     return start
 
 
@@ -340,7 +350,11 @@ def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: floa
 
     if p_start is None:
         p_start = problem.p0
-        if _resolved_start(problem, start) != "p0":
+        resolved = _resolved_start(problem, start)
+        reaction = reaction_start(problem, counts) if resolved == "reaction" else None
+        if reaction is not None:  # held at points besides the root: the optimum over their reactions
+            p_start, history = reaction, [start_violation(problem)]
+        elif resolved not in ("p0", "reaction"):
             confirmed = confirmed_start(problem, tol, kkt_tol) if start == "auto" else None
             linear = confirmed.p if confirmed is not None else linear_start(problem, optimal=start == "auto")
             if linear is not None:

@@ -122,25 +122,13 @@ def test_stability_with_an_interior_pin_matches_a_dense_solve():
 
 def test_a_groom_strand_pinned_at_its_middle_reaches_ipopts_optimum():
     """From the linear start asc crawled on this strand (max_iterations at a feasible point, KKT
-    distance 0.4, R 0.269178); a pinned strand starts from p0 (alm module docstring, Start)."""
+    distance 0.4, R 0.269178); a pinned strand starts from the optimum over its pin's reaction
+    (solvers.reaction_start; alm module docstring, Start)."""
     strand = sagfree.scenes.groom(10, 30, seed=1)[3].attached(pins=[15])
     problem = sagfree.Problem(strand, stabilize=False)
     ours, ipopt = sagfree.solve(problem), sagfree.solve(problem, "ipopt")
     assert ours.status == ipopt.status == "converged", ours.message
     assert ours.objective == pytest.approx(ipopt.objective, rel=1e-6)
-
-
-def test_a_default_solve_that_crawls_begins_again_from_the_other_start():
-    """horizontal(400, pins=[200]) from p0 ends max_iterations; the default solve then begins again
-    from the linear start, converges there, and counts both solves."""
-    problem = sagfree.Problem(sagfree.scenes.horizontal(n=400, pins=[200]), stabilize=False)
-    from_p0 = sagfree.solve(problem, start="p0")
-    assert from_p0.status == "max_iterations"
-    result = sagfree.solve(problem)
-    assert result.status == "converged", result.message
-    assert "from the linear start (p0 ended max_iterations)" in result.message
-    assert result.iterations["outer"] > from_p0.iterations["outer"]
-    assert result.objective < from_p0.objective
 
 
 def test_simulation_keeps_held_vertices_in_place(cable):

@@ -144,10 +144,11 @@ def test_newton_sqps_kkt_points_are_answers_in_both_loops(monkeypatch, seed, ind
     rad, which both ended max_iterations at a feasible point. From |c|_inf ~1e-6 Newton-SQP reached a
     KKT point whose R was above its infeasible start: within the first-order cost of reaching c = 0
     (outer_loop.feasibility_cost) it is taken at once; above it, it is kept, and it is the answer
-    where Gauss-Newton then crawls to max_outer above it (alm._newton_attempt). Both loops alike."""
+    where Gauss-Newton then crawls to max_outer above it (alm._newton_attempt). Both loops alike,
+    from p0 (a default solve starts at the optimum over the tip's reaction, solvers.reaction_start)."""
     strand = sagfree.scenes.groom(3, 400, seed=seed)[index].attached(tip="pinned")
     problem = Problem(strand, bounds={"curvature_budget": 0.4, "twist_budget": 0.4})
-    compiled, python = solved_both_ways(monkeypatch, problem)
+    compiled, python = solved_both_ways(monkeypatch, problem, start="p0")
     assert compiled.status == "converged", compiled.message
     assert ("Newton-SQP's KKT point" in compiled.message) == kept
     assert kept or compiled.iterations["gauss_newton"] <= 10
@@ -210,9 +211,10 @@ MIDDLE_PIN_IPOPT = 1.0334358e-3
 def test_newton_sqps_bounded_steps_reach_ipopts_optimum_in_both_loops(monkeypatch):
     """horizontal(200, pins=[100]): Newton-SQP's equality steps, clipped to the box, ended at a KKT
     point 3.3% above Ipopt's R (1.06774e-3); its bounded steps (outer_loop.bounded_newton_step), tried
-    first, reach Ipopt's optimum, the same in both loops."""
+    first, reach Ipopt's optimum, the same in both loops (from p0: a default solve starts at that
+    optimum, solvers.reaction_start)."""
     problem = Problem(sagfree.scenes.horizontal(n=200, pins=[100]), stabilize=False)
-    compiled, python = solved_both_ways(monkeypatch, problem)
+    compiled, python = solved_both_ways(monkeypatch, problem, start="p0")
     assert compiled.status == "converged", compiled.message
     assert compiled.objective == pytest.approx(MIDDLE_PIN_IPOPT, rel=1e-6)
     assert compiled.iterations["newton_sqp"] > 0
@@ -227,7 +229,7 @@ def test_a_bounded_newton_step_is_its_qps_kkt_point():
     the sign that holds each held one on its bound, to 1e-5 of its terms (the band LU's rounding on a
     system whose rest-length columns are ~1e7 times the others)."""
     problem = Problem(sagfree.scenes.horizontal(n=200, pins=[100]), stabilize=False)
-    optimum, w = alm.solve_alm(problem).p, problem.layout.weights
+    optimum, w = alm.solve_alm(problem, start="p0").p, problem.layout.weights  # the optimum Newton-SQP reached
     lower, upper, curvatures = problem.lower, problem.upper, problem.blocks["rest_curvature"]
     x = optimum.copy()
     noise = np.random.default_rng(0).uniform(-1, 1, curvatures.size)

@@ -14,9 +14,11 @@ warm-up strand, held by its root alone, starts at its optimum, and the first str
 Gauss-Newton step loaded the loop, ~90 ms, in its Result.time). What only rarer branches reach is
 prepared on its own: the QPs' interior-point fallback, the constraints' curvature of Newton-SQP,
 the infeasibility certificate, the stabilization's rounds (the warm-up strand is stable), the
-many-right-hand-side band solve of the least sag (the warm-up strand is feasible). On a machine whose caches do not
-hold this code's kernels yet, the first warm-up runs once in a child interpreter first (priming), so
-that the process that solves, and the workers it forks, load the kernels instead of carrying a compile.
+many-right-hand-side band solve of the least sag (the warm-up strand is feasible), the search over
+the reactions of a strand held at more points than its root (the warm-up strand is held by its root
+alone). On a machine whose caches do not hold this code's kernels yet, the first warm-up runs once
+in a child interpreter first (priming), so that the process that solves, and the workers it forks,
+load the kernels instead of carrying a compile.
 The forward check has its own (``warm_check``), which the batch's ``simulate_strands`` runs before
 its first timed SagCheck. Each warm-up ends by releasing the parsed LLVM IR numba keeps for the
 kernels it loaded (``sagfree.kernel_memory``): a third of what the warm-up adds to each process.
@@ -34,7 +36,7 @@ from sagfree.formulation.simulation import equilibrium, sag_check
 from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
 from sagfree.linalg import cholesky
-from sagfree.solvers import interior_point, least_sag
+from sagfree.solvers import interior_point, least_sag, reaction_start
 from sagfree.solvers.statics_start import unbalanceable
 
 from .priming import primed_in_child
@@ -159,6 +161,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     _quietly(interior_point.compile_kernels)
     _quietly(cholesky.compile_kernels)
     _quietly(least_sag.compile_kernels)
+    _quietly(reaction_start.compile_kernels)
     entry = solver_entry(solver)
     _quietly(_solve_warm_strand, entry, solver_options, problem_options or {}, paths)
     release_linking_ir()  # the loaded kernels' IR, which only compiles of their callers read

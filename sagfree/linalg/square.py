@@ -31,11 +31,31 @@ def square_column_solve(J, columns: np.ndarray, rhs: np.ndarray) -> np.ndarray |
     return x if x.size and np.all(np.isfinite(x)) else None
 
 
+@timed(LINEAR_ALGEBRA)
+def square_column_solves(J, columns: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
+    """``square_column_solve`` for each column of ``rhs`` (rows, m) from one LU: X (J.shape[1], m)."""
+    columns = np.asarray(columns, dtype=np.bool_)
+    if int(columns.sum()) != J.shape[0]:
+        return None
+    indptr, indices, data = csc_arrays(J)
+    x = square_solutions(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, columns,
+                         np.ascontiguousarray(np.asarray(rhs, dtype=float).T))
+    return x.T.copy() if x.size and np.all(np.isfinite(x)) else None
+
+
 @numba.njit(cache=True)
 def square_solution(dgbtrf, dgbtrs, indptr, indices, data, columns, rhs):  # pragma: no cover - compiled
     """``square_column_solve`` in one compiled call, callable from compiled code (empty where LAPACK
     reports a zero pivot)."""
-    n, rows = indptr.size - 1, rhs.size
+    x = square_solutions(dgbtrf, dgbtrs, indptr, indices, data, columns, rhs.reshape(1, rhs.size))
+    return x[0] if x.size else np.empty(0)
+
+
+@numba.njit(cache=True)
+def square_solutions(dgbtrf, dgbtrs, indptr, indices, data, columns, rhs):  # pragma: no cover - compiled
+    """``square_solution`` for each row of ``rhs`` (m, rows) from one LU: (m, J.shape[1]), empty
+    where LAPACK reports a zero pivot."""
+    n, rows = indptr.size - 1, rhs.shape[1]
     number = np.full(n, -1, dtype=np.int64)  # each kept column's index in x_C
     kept = 0
     kl, ku = 0, 0
@@ -54,11 +74,12 @@ def square_solution(dgbtrf, dgbtrs, indptr, indices, data, columns, rhs):  # pra
                 band[k, kl + ku + indices[e] - k] = data[e]
     pivots = np.empty(rows, dtype=np.int32)
     if lapack.band_lu(dgbtrf, band, kl, ku, pivots) != 0:
-        return np.empty(0)
-    solution = rhs.copy()
-    lapack.band_lu_solve(dgbtrs, band, kl, ku, pivots, solution)
-    x = np.zeros(n)
-    for j in range(n):
-        if columns[j]:
-            x[j] = solution[number[j]]
+        return np.empty((0, n))
+    x = np.zeros((rhs.shape[0], n))
+    for m in range(rhs.shape[0]):
+        solution = rhs[m].copy()
+        lapack.band_lu_solve(dgbtrs, band, kl, ku, pivots, solution)
+        for j in range(n):
+            if columns[j]:
+                x[m, j] = solution[number[j]]
     return x

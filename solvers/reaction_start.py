@@ -1,0 +1,355 @@
+"""asc's start for a strand held at points besides its root: the optimum over the held points' reactions.
+
+A strand held by its root alone is statically determinate: its rest blocks' columns of dc/dp at p0
+form a square system whose one solution fixes every element's stresses, and the parameter problem
+falls apart element by element (solvers.statics_start). Hold more points (a pinned tip, pins) and
+their reactions are k more unknowns (3 per held point): the structure stays, one level up.
+
+- Drop the holds and the strand is its root-held companion (the same strand, tip free, no pins):
+  the square system J_R d = -c(p0) of its free DOFs, the held points' included.
+- A rest change d balances the held strand exactly when it balances the companion up to forces on
+  the held DOFs: J_R d = -c(p0) + E F, F in R^k those DOFs' reactions (rows of c, in units of
+  their row scales), E their unit columns. So the balancing changes are d(F) = d0 + N F with
+  d0 = J_R^-1 (-c(p0)) (alm.linear_start's change of the companion) and N = J_R^-1 E: one band LU,
+  k + 1 solves (linalg.square).
+- For each F the rest of the problem is the root-held one: statics_optimum(d(F)) is the least R
+  among the p whose stresses are d(F)'s, in closed form element by element. So the held strand's
+  problem is the minimization of Phi(F) = R(statics_optimum(d(F))) over k unknowns (Phi = inf
+  where a box admits no multiplier for d(F)).
+
+Each element's share is the value of a convex problem in one multiplier, so Phi varies smoothly
+between the reactions at which a box starts or stops binding, where its curvature jumps. The search
+runs on F scaled by the strand's total external force over each held row's scale, from F = 0 (the
+root carries everything; a floored twin of the stabilization from the last search's F): BFGS
+with forward-difference gradients and an Armijo line search
+(Nocedal & Wright, Numerical Optimization, algorithm 6.1), then one round of Nelder-Mead
+(Lagarias et al., SIAM J. Optim. 9, 1998: reflection 1, expansion 2, contraction 1/2, shrink 1/2)
+on a small simplex around its end, where a jump in curvature can stop the line search short. On
+groom strands with a pinned tip or a pin (k = 3) that takes ~250 values of Phi, where Nelder-Mead
+alone took ~420. The whole search is one compiled call (``reaction_values`` counts its values).
+asc then confirms the point by its KKT distance, as it confirms a root-held strand's start, or
+polishes it.
+
+Why: from p0 or the linear start the augmented Lagrangian has to find the reactions through the
+whole parameter space, where the problem is nonconvex; it crawled to max_iterations at feasible
+non-KKT points (groom strands pinned at their middle vertex, 400 vertices: 4 of 20; a pinned tip
+from 3000 vertices on) and converged at worse optima elsewhere. Over k unknowns the search reaches
+the optimum Ipopt finds on those (benchmarks/RESULTS.md, 2026-12-05, thirty-first session).
+
+Applies where statics_start's decomposition does but for the holds (per-element stiffness, twist
+coupled to bend, every block optimized, no bodies, a clamped root), to holds of points only (a
+pinned tip, pins; a clamped tip's held twist and the rest blocks that act on no free DOF there fall
+outside d(F)), and where the companion's system is square; ``None`` elsewhere and where no F
+evaluated admits multipliers (a strand the boxes may not balance: asc's own path decides).
+"""
+from __future__ import annotations
+
+import weakref
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+from sagfree.formulation.parameters import BLOCKS, CONTACT_BLOCK, REST_BLOCKS
+from sagfree.formulation.problem import Problem
+from sagfree.linalg.band import column_norms
+from sagfree.linalg.square import square_column_solves
+
+from .gauss_newton import regularizer_value
+from .statics_start import square_rest_system, statics_indices, statics_optimum
+
+#: evaluations of Phi per search, over all restarts
+MAX_EVALUATIONS = 4000
+#: the quasi-Newton phase: the forward differences' relative step and its floor (scaled units), the
+#: longest first trial step (scaled units) and the Armijo constant
+DIFFERENCE_STEP = 1.5e-8
+DIFFERENCE_FLOOR = 0.1
+MAX_STEP = 1.0
+ARMIJO = 1e-4
+#: relative change of Phi below which the quasi-Newton phase stops (rounding: gauss_newton's ROUNDING)
+ROUNDING = 1e-13
+#: the simplex edge (scaled units) of the Nelder-Mead round that looks for a finite Phi where F = 0
+#: has none, and of the round that polishes the quasi-Newton phase's end (a kink can stop it short)
+FIRST_STEP = 0.1
+POLISH_STEP = 1e-5
+#: a round ends when its simplex is within this (scaled units) or its values within VALUE_SPREAD (relative)
+SIMPLEX_SIZE = 1e-10
+VALUE_SPREAD = 1e-15
+
+# the search's outcome by Problem (its floored twins are other Problems)
+_FOUND: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) the search and the family's many-right-hand-side band
+    solve with the argument types of a strand's, on a strand of two edges: only strands held at more
+    points than their root run them, and frontend.warm calls this before any timed solve."""
+    J = sp.csc_matrix(np.eye(2))
+    square_column_solves(J, np.ones(2, dtype=bool), np.eye(2))
+    integers = np.arange(8)
+    integers.flags.writeable = False  # as the layout's block indices are
+    p0 = np.r_[0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    lower, upper = p0 - np.r_[0.1, 0.1, 0.5, 0.5, 0.5, 1.0, 1.0, 1.0], p0 + 1.0
+    least_over_reactions(np.zeros(1), np.zeros(8), np.zeros((8, 1)), np.ones(1), p0, np.ones(8), lower, upper, integers[:2],
+                         integers[2:4], integers[4:5], integers[5:].reshape(1, 3).copy(), np.ones(2))
+
+
+def applies(problem: Problem) -> bool:
+    """True where the module's decomposition can hold (module docstring, last paragraph)."""
+    layout, strand = problem.layout, problem.strand
+    return (layout.stiffness == "element" and layout.couple_twist
+            and set(layout.blocks) == set(BLOCKS) - {"twist_stiffness"} and CONTACT_BLOCK not in layout.blocks
+            and strand.root == "clamped" and strand.tip != "clamped" and (strand.tip == "pinned" or len(strand.pins) > 0))
+
+
+def reaction_start(problem: Problem, counts: dict | None = None) -> np.ndarray | None:
+    """The least R over the held points' reactions (module docstring), or None where the module does
+    not apply or no reaction tried admits multipliers; searched once per Problem, the values of Phi
+    it took added to ``counts["reaction_values"]`` when it searches."""
+    if problem not in _FOUND:
+        _FOUND[problem], evaluations = _searched(problem)
+        if counts is not None:
+            counts["reaction_values"] = counts.get("reaction_values", 0) + evaluations
+    found = _FOUND[problem]
+    return None if found is None else found.copy()
+
+
+def _searched(problem: Problem) -> tuple[np.ndarray | None, int]:
+    if not applies(problem):
+        return None, 0
+    family = problem.bound_independent("reaction family", lambda: reaction_family(problem))
+    if family is None:
+        return None, 0
+    change, basis, scale = family
+    layout = problem.layout
+    # the last search's reactions, shared with the floored twins: a floor moves the optimum a little
+    last = problem.bound_independent("last reactions", lambda: np.zeros(basis.shape[1]))
+    p, reactions, evaluations = least_over_reactions(last, change, basis, scale, layout.p0, layout.weights,
+                                                     layout.lower, layout.upper, *statics_indices(problem),
+                                                     problem.edge_lengths)
+    last[:] = reactions
+    return (p if p.size else None), int(evaluations)
+
+
+def reaction_family(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(d0, N, scale): the balancing rest changes d0 + N F of the module docstring (N: (parameters,
+    k), one column per held DOF in the order of the companion's rows), and each F entry's scale,
+    the sum of |external force| over the strand in units of its row's scale; None where the
+    companion's system is not square or its rest columns that act are not the held strand's."""
+    strand = problem.strand
+    companion = Problem(strand.attached(tip="free", pins=()), **{**problem.options, "stabilize": False})
+    if not square_rest_system(companion):
+        return None
+    rest = problem.layout.block_mask(REST_BLOCKS)
+    J = companion.strand_jacobian(companion.layout.p0)
+    acting = rest & (column_norms(J) > 0)
+    if not np.array_equal(acting, rest & (column_norms(problem.strand_jacobian(problem.layout.p0)) > 0)):
+        return None
+    held_rows = np.flatnonzero(~problem.free[companion.free_index])
+    rhs = np.zeros((J.shape[0], 1 + held_rows.size))
+    rhs[:, 0] = -companion.residual(companion.layout.p0)
+    rhs[held_rows, 1 + np.arange(held_rows.size)] = 1.0
+    solutions = square_column_solves(J, acting, rhs)
+    if solutions is None:
+        return None
+    total = float(np.abs(problem.external_forces).sum())
+    scale = total / companion.row_scale[companion.free_index[held_rows]]
+    return solutions[:, 0].copy(), np.ascontiguousarray(solutions[:, 1:]), scale
+
+
+@numba.njit(cache=True)
+def reaction_value(x, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work):  # pragma: no cover
+    """(Phi, p) at the scaled reactions x (F = scale x): R at statics_optimum(d0 + N F), inf (p
+    empty) where a box admits no multiplier."""
+    d = change + basis @ (scale * x)
+    p = statics_optimum(d, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
+    if p.size == 0:
+        return np.inf, p
+    return regularizer_value(w, p, p0, work), p
+
+
+@numba.njit(cache=True)
+def least_over_reactions(start, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest,
+                         lengths):  # pragma: no cover - compiled
+    """(p, x, evaluations): statics_optimum at the scaled reactions x that minimize Phi (module
+    docstring), p empty where every value met was inf, and the values of Phi it took (at most
+    about MAX_EVALUATIONS). From ``start`` (F = 0 where Phi is inf there), or where Phi is inf at
+    F = 0 too from the best point of a Nelder-Mead round on a simplex of edge FIRST_STEP:
+    quasi-Newton, then a Nelder-Mead round on a simplex of edge POLISH_STEP around its end."""
+    work = np.empty(p0.size)
+    args = (change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work)
+    x = start.copy()
+    value, _p = reaction_value(x, *args)
+    evaluations = 1
+    if not np.isfinite(value) and np.any(x != 0.0):
+        x[:] = 0.0
+        value, _p = reaction_value(x, *args)
+        evaluations += 1
+    if not np.isfinite(value):
+        x, value, evaluations = _nelder_mead_round(x, value, FIRST_STEP, evaluations, args)
+    if np.isfinite(value):
+        x, value, evaluations = _quasi_newton(x, value, evaluations, args)
+        x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, args)
+    if not np.isfinite(value):
+        return np.empty(0), x, evaluations
+    value, p = reaction_value(x, *args)
+    return p, x, evaluations + 1
+
+
+@numba.njit(cache=True)
+def _nelder_mead_round(x, value, step, evaluations, args):  # pragma: no cover - compiled
+    """(x, value, evaluations) at the best vertex of Nelder-Mead (_nelder_mead) from the simplex of
+    x and x + step e_i."""
+    k = x.size
+    simplex, values = np.empty((k + 1, k)), np.empty(k + 1)
+    simplex[0], values[0] = x, value
+    for i in range(k):
+        simplex[i + 1] = x
+        simplex[i + 1, i] += step
+        values[i + 1], _p = reaction_value(simplex[i + 1], *args)
+    evaluations = _nelder_mead(simplex, values, evaluations + k, *args)
+    best = np.argmin(values)
+    if values[best] < value:
+        return simplex[best].copy(), values[best], evaluations
+    return x, value, evaluations
+
+
+@numba.njit(cache=True)
+def _forward_gradient(x, value, args):  # pragma: no cover - compiled
+    """Phi's gradient at x by forward differences (backward where the forward point is inf), steps
+    sqrt(eps) max(|x_i|, DIFFERENCE_FLOOR); all NaN where both sides of an entry are inf."""
+    k = x.size
+    gradient = np.empty(k)
+    for i in range(k):
+        h = DIFFERENCE_STEP * max(abs(x[i]), DIFFERENCE_FLOOR)
+        moved = x.copy()
+        moved[i] += h
+        forward, _p = reaction_value(moved, *args)
+        if np.isfinite(forward):
+            gradient[i] = (forward - value) / h
+            continue
+        moved[i] = x[i] - h
+        backward, _p = reaction_value(moved, *args)
+        if not np.isfinite(backward):
+            gradient[:] = np.nan
+            return gradient
+        gradient[i] = (value - backward) / h
+    return gradient
+
+
+@numba.njit(cache=True)
+def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
+    """BFGS on Phi from x (inverse Hessian scaled by y's/s's ratio after the first step, Nocedal &
+    Wright 6.20), forward-difference gradients, Armijo backtracking that treats inf as no decrease
+    and a first step taken whole doubled while Phi falls (Phi can fall linearly over many units:
+    a strand pulled taut between its holds); ends when a step moves x by at most SIMPLEX_SIZE or
+    lowers Phi by at most ROUNDING of itself, the line search fails, or MAX_EVALUATIONS.
+    Returns (x, value, evaluations)."""
+    k = x.size
+    inverse = np.eye(k)
+    gradient = _forward_gradient(x, value, args)
+    evaluations += k
+    first = True
+    while evaluations < MAX_EVALUATIONS and np.all(np.isfinite(gradient)):
+        direction = -(inverse @ gradient)
+        slope = direction @ gradient
+        if not slope < 0.0:
+            inverse = np.eye(k)
+            direction, slope = -gradient, -(gradient @ gradient)
+            if not slope < 0.0:
+                break
+        longest = np.abs(direction).max()
+        t = min(1.0, MAX_STEP / longest) if longest > 0.0 else 1.0
+        accepted = backtracked = False
+        while t * longest > SIMPLEX_SIZE and evaluations < MAX_EVALUATIONS:
+            trial = x + t * direction
+            trial_value, _p = reaction_value(trial, *args)
+            evaluations += 1
+            if trial_value <= value + ARMIJO * t * slope:
+                accepted = True
+                break
+            t *= 0.5
+            backtracked = True
+        if not accepted:
+            break
+        while not backtracked and evaluations < MAX_EVALUATIONS:  # a first step taken whole: double it while that lowers Phi
+            farther = x + 2.0 * t * direction
+            farther_value, _p = reaction_value(farther, *args)
+            evaluations += 1
+            if not farther_value < trial_value:
+                break
+            t, trial, trial_value = 2.0 * t, farther, farther_value
+        if value - trial_value <= ROUNDING * abs(value) or np.abs(trial - x).max() <= SIMPLEX_SIZE:
+            x, value = trial, trial_value  # at Phi's rounding: nothing left for differences to resolve
+            break
+        new_gradient = _forward_gradient(trial, trial_value, args)
+        evaluations += k
+        s, y = trial - x, new_gradient - gradient
+        x, value, gradient = trial, trial_value, new_gradient
+        sy = s @ y
+        if sy > 1e-12 * np.sqrt((s @ s) * (y @ y)):
+            if first:
+                inverse = np.eye(k) * (sy / (y @ y))
+                first = False
+            rho = 1.0 / sy
+            hy = inverse @ y
+            inverse += (rho * rho * (y @ hy) + rho) * np.outer(s, s) - rho * (np.outer(hy, s) + np.outer(s, hy))
+    return x, value, evaluations
+
+
+@numba.njit(cache=True)
+def _nelder_mead(simplex, values, evaluations, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend,
+                 rest, lengths, work):  # pragma: no cover - compiled
+    """Nelder-Mead iterations on ``simplex`` (k + 1 rows) and its ``values`` in place until the
+    simplex is within SIMPLEX_SIZE or its values within VALUE_SPREAD, or MAX_EVALUATIONS; returns
+    the evaluations counted so far."""
+    k = simplex.shape[1]
+    args = (change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work)
+    while evaluations < MAX_EVALUATIONS:
+        order = np.argsort(values)
+        simplex[:] = simplex[order]
+        values[:] = values[order]
+        size = 0.0
+        for i in range(1, k + 1):
+            for j in range(k):
+                size = max(size, abs(simplex[i, j] - simplex[0, j]))
+        if not np.isfinite(values[0]) or size <= SIMPLEX_SIZE or values[k] - values[0] <= VALUE_SPREAD * values[0]:
+            break
+        centroid = np.zeros(k)
+        for i in range(k):
+            centroid += simplex[i]
+        centroid /= k
+        reflected = 2.0 * centroid - simplex[k]
+        reflected_value, _p = reaction_value(reflected, *args)
+        evaluations += 1
+        if reflected_value < values[0]:
+            expanded = 3.0 * centroid - 2.0 * simplex[k]
+            expanded_value, _p = reaction_value(expanded, *args)
+            evaluations += 1
+            if expanded_value < reflected_value:
+                simplex[k], values[k] = expanded, expanded_value
+            else:
+                simplex[k], values[k] = reflected, reflected_value
+            continue
+        if reflected_value < values[k - 1]:
+            simplex[k], values[k] = reflected, reflected_value
+            continue
+        if reflected_value < values[k]:  # outside contraction
+            contracted = 0.5 * (centroid + reflected)
+            contracted_value, _p = reaction_value(contracted, *args)
+            evaluations += 1
+            if contracted_value <= reflected_value:
+                simplex[k], values[k] = contracted, contracted_value
+                continue
+        else:  # inside contraction
+            contracted = 0.5 * (centroid + simplex[k])
+            contracted_value, _p = reaction_value(contracted, *args)
+            evaluations += 1
+            if contracted_value < values[k]:
+                simplex[k], values[k] = contracted, contracted_value
+                continue
+        for i in range(1, k + 1):  # shrink towards the best vertex
+            simplex[i] = 0.5 * (simplex[0] + simplex[i])
+            values[i], _p = reaction_value(simplex[i], *args)
+        evaluations += k
+    return evaluations
