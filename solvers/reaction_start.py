@@ -18,17 +18,18 @@ their reactions are k more unknowns (3 per held point): the structure stays, one
   where a box admits no multiplier for d(F)).
 
 Each element's share is the value of a convex problem in one multiplier, so Phi varies smoothly
-between the reactions at which a box starts or stops binding, where its curvature jumps. The search
-runs on F scaled by the strand's total external force over each held row's scale, from F = 0 (the
-root carries everything; a floored twin of the stabilization from the last search's F): BFGS
-with forward-difference gradients and an Armijo line search
-(Nocedal & Wright, Numerical Optimization, algorithm 6.1), then one round of Nelder-Mead
-(Lagarias et al., SIAM J. Optim. 9, 1998: reflection 1, expansion 2, contraction 1/2, shrink 1/2)
-on a small simplex around its end, where a jump in curvature can stop the line search short. On
-groom strands with a pinned tip or a pin (k = 3) that takes ~250 values of Phi, where Nelder-Mead
-alone took ~420. The whole search is one compiled call (``reaction_values`` counts its values).
-asc then confirms the point by its KKT distance, as it confirms a root-held strand's start, or
-polishes it.
+between the reactions at which a box starts or stops binding, where its curvature jumps. The
+search runs on F scaled by the strand's total external force over each held row's scale, from
+F = 0 (the root carries everything; a floored twin of the stabilization from the last search's F):
+BFGS with forward-difference gradients and an Armijo line search (Nocedal & Wright, Numerical
+Optimization, algorithm 6.1). Where a jump in curvature stopped it short (a small step along an
+axis, or a diagonal between two, still lowers Phi), one round of Nelder-Mead (Lagarias et al.,
+SIAM J. Optim. 9, 1998: reflection 1, expansion 2, contraction 1/2, shrink 1/2) on a small simplex
+around its end follows. On groom strands with a pinned tip or a pin (k = 3) that takes ~150 values
+of Phi, where Nelder-Mead alone took ~420. The whole search is one compiled call
+(``reaction_values`` counts its values). asc then confirms the point by its KKT distance, as it
+confirms a root-held strand's start, or polishes it (a kink whose descent runs along none of
+those directions leaves the search short).
 
 Why: from p0 or the linear start the augmented Lagrangian has to find the reactions through the
 whole parameter space, where the problem is nonconvex; it crawled to max_iterations at feasible
@@ -69,7 +70,8 @@ ARMIJO = 1e-4
 #: relative change of Phi below which the quasi-Newton phase stops (rounding: gauss_newton's ROUNDING)
 ROUNDING = 1e-13
 #: the simplex edge (scaled units) of the Nelder-Mead round that looks for a finite Phi where F = 0
-#: has none, and of the round that polishes the quasi-Newton phase's end (a kink can stop it short)
+#: has none, and of the round that polishes the quasi-Newton phase's end (a kink can stop it short;
+#: also the axis steps that test for that)
 FIRST_STEP = 0.1
 POLISH_STEP = 1e-5
 #: a round ends when its simplex is within this (scaled units) or its values within VALUE_SPREAD (relative)
@@ -175,7 +177,8 @@ def least_over_reactions(start, change, basis, scale, p0, w, lower, upper, rate,
     docstring), p empty where every value met was inf, and the values of Phi it took (at most
     about MAX_EVALUATIONS). From ``start`` (F = 0 where Phi is inf there), or where Phi is inf at
     F = 0 too from the best point of a Nelder-Mead round on a simplex of edge FIRST_STEP:
-    quasi-Newton, then a Nelder-Mead round on a simplex of edge POLISH_STEP around its end."""
+    quasi-Newton, then, where it stopped short of a minimum (_improvable), a Nelder-Mead round on a
+    simplex of edge POLISH_STEP around its end."""
     work = np.empty(p0.size)
     args = (change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work)
     x = start.copy()
@@ -189,11 +192,37 @@ def least_over_reactions(start, change, basis, scale, p0, w, lower, upper, rate,
         x, value, evaluations = _nelder_mead_round(x, value, FIRST_STEP, evaluations, args)
     if np.isfinite(value):
         x, value, evaluations = _quasi_newton(x, value, evaluations, args)
-        x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, args)
+        improvable, evaluations = _improvable(x, value, evaluations, args)
+        if improvable:
+            x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, args)
     if not np.isfinite(value):
         return np.empty(0), x, evaluations
     value, p = reaction_value(x, *args)
     return p, x, evaluations + 1
+
+
+@numba.njit(cache=True)
+def _improvable(x, value, evaluations, args):  # pragma: no cover - compiled
+    """(improvable, evaluations): True where a step of POLISH_STEP along some axis or diagonal
+    between two axes, either way, lowers Phi by more than its ROUNDING: the quasi-Newton phase
+    stopped short of a minimum (at a kink), not at one. Axes alone missed a kink on one groom strand
+    pinned at the middle (KKT distance 2.7e-3 at the search's end)."""
+    k = x.size
+    for i in range(k):
+        for j in range(i, k):  # the axes (j = i), then the diagonals between two axes
+            for sign_i in (-1.0, 1.0):
+                for sign_j in (-1.0, 1.0):
+                    if j == i and sign_j < 0.0:
+                        continue
+                    moved = x.copy()
+                    moved[i] += sign_i * POLISH_STEP
+                    if j != i:
+                        moved[j] += sign_j * POLISH_STEP
+                    moved_value, _p = reaction_value(moved, *args)
+                    evaluations += 1
+                    if moved_value < value - ROUNDING * abs(value):
+                        return True, evaluations
+    return False, evaluations
 
 
 @numba.njit(cache=True)
@@ -243,8 +272,8 @@ def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
     Wright 6.20), forward-difference gradients, Armijo backtracking that treats inf as no decrease
     and a first step taken whole doubled while Phi falls (Phi can fall linearly over many units:
     a strand pulled taut between its holds); ends when a step moves x by at most SIMPLEX_SIZE or
-    lowers Phi by at most ROUNDING of itself, the line search fails, or MAX_EVALUATIONS.
-    Returns (x, value, evaluations)."""
+    lowers Phi by at most ROUNDING of itself, the line search fails, or MAX_EVALUATIONS. Returns
+    (x, value, evaluations)."""
     k = x.size
     inverse = np.eye(k)
     gradient = _forward_gradient(x, value, args)
