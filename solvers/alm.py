@@ -47,7 +47,7 @@ Start: per-element stiffness starts from the least rest-shape change that balanc
     to stiffen (R 0.17 where the optimum is 8e-4 on a strand lying on a head), and the augmented
     Lagrangian then lost feasibility from it. A strand held at points besides its root (a pinned
     tip, pins) starts at the optimum over those points' reactions (solvers.reaction_start: the
-    root-held decomposition with k = 3 per point more unknowns, searched by Nelder-Mead), which asc
+    root-held decomposition with 3 more unknowns per point, searched by quasi-Newton), which asc
     confirms as it does a root-held start: from p0 or the linear start the augmented Lagrangian
     crawled at feasible non-KKT points or stopped at worse optima (groom strands pinned at their
     middle vertex, 400 vertices: 4 of 20 max_iterations; a pinned tip from 3000 vertices on).
@@ -285,7 +285,7 @@ def zero_counts() -> dict[str, int]:
 
 def _other_start(problem: Problem) -> str | None:
     """The start a default solve (start "auto") that ended max_iterations tries next: p0 after the
-    linear start, the linear start after p0 where it applies, else None."""
+    linear start or the reaction search, the linear start after p0 where it applies, else None."""
     first = _resolved_start(problem, "auto")
     if first != "p0" and (first != "reaction" or reaction_start(problem) is not None):
         return "p0"
