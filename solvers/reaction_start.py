@@ -59,7 +59,7 @@ from sagfree.linalg.square import square_column_solves
 from .gauss_newton import regularizer_value
 from .statics_start import square_rest_system, statics_indices, statics_optimum
 
-#: evaluations of Phi per search, over all restarts
+#: values of Phi per search, all its phases together
 MAX_EVALUATIONS = 4000
 #: the quasi-Newton phase: the forward differences' relative step and its floor (scaled units), the
 #: longest first trial step (scaled units) and the Armijo constant
@@ -92,8 +92,8 @@ def compile_kernels() -> None:
     integers.flags.writeable = False  # as the layout's block indices are
     p0 = np.r_[0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
     lower, upper = p0 - np.r_[0.1, 0.1, 0.5, 0.5, 0.5, 1.0, 1.0, 1.0], p0 + 1.0
-    least_over_reactions(np.zeros(1), np.zeros(8), np.zeros((8, 1)), np.ones(1), p0, np.ones(8), lower, upper, integers[:2],
-                         integers[2:4], integers[4:5], integers[5:].reshape(1, 3).copy(), np.ones(2))
+    least_over_reactions(np.zeros(1), np.zeros(8), np.zeros((8, 1)), np.ones(1), p0, np.ones(8), lower, upper,
+                         integers[:2], integers[2:4], integers[4:5], integers[5:].reshape(1, 3).copy(), np.ones(2))
 
 
 def applies(problem: Problem) -> bool:
@@ -101,7 +101,8 @@ def applies(problem: Problem) -> bool:
     layout, strand = problem.layout, problem.strand
     return (layout.stiffness == "element" and layout.couple_twist
             and set(layout.blocks) == set(BLOCKS) - {"twist_stiffness"} and CONTACT_BLOCK not in layout.blocks
-            and strand.root == "clamped" and strand.tip != "clamped" and (strand.tip == "pinned" or len(strand.pins) > 0))
+            and strand.root == "clamped" and strand.tip != "clamped"
+            and (strand.tip == "pinned" or len(strand.pins) > 0))
 
 
 def reaction_start(problem: Problem, counts: dict | None = None) -> np.ndarray | None:
@@ -160,7 +161,8 @@ def reaction_family(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 
 @numba.njit(cache=True)
-def reaction_value(x, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work):  # pragma: no cover
+def reaction_value(x, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths,
+                   work):  # pragma: no cover - compiled
     """(Phi, p) at the scaled reactions x (F = scale x): R at statics_optimum(d0 + N F), inf (p
     empty) where a box admits no multiplier."""
     d = change + basis @ (scale * x)
@@ -245,25 +247,29 @@ def _nelder_mead_round(x, value, step, evaluations, args):  # pragma: no cover -
 
 @numba.njit(cache=True)
 def _forward_gradient(x, value, args):  # pragma: no cover - compiled
-    """Phi's gradient at x by forward differences (backward where the forward point is inf), steps
-    sqrt(eps) max(|x_i|, DIFFERENCE_FLOOR); all NaN where both sides of an entry are inf."""
+    """(gradient, values taken): Phi's gradient at x by forward differences (backward where the
+    forward point is inf), steps sqrt(eps) max(|x_i|, DIFFERENCE_FLOOR); all NaN where both sides
+    of an entry are inf."""
     k = x.size
     gradient = np.empty(k)
+    taken = 0
     for i in range(k):
         h = DIFFERENCE_STEP * max(abs(x[i]), DIFFERENCE_FLOOR)
         moved = x.copy()
         moved[i] += h
         forward, _p = reaction_value(moved, *args)
+        taken += 1
         if np.isfinite(forward):
             gradient[i] = (forward - value) / h
             continue
         moved[i] = x[i] - h
         backward, _p = reaction_value(moved, *args)
+        taken += 1
         if not np.isfinite(backward):
             gradient[:] = np.nan
-            return gradient
+            return gradient, taken
         gradient[i] = (value - backward) / h
-    return gradient
+    return gradient, taken
 
 
 @numba.njit(cache=True)
@@ -276,8 +282,8 @@ def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
     (x, value, evaluations)."""
     k = x.size
     inverse = np.eye(k)
-    gradient = _forward_gradient(x, value, args)
-    evaluations += k
+    gradient, taken = _forward_gradient(x, value, args)
+    evaluations += taken
     first = True
     while evaluations < MAX_EVALUATIONS and np.all(np.isfinite(gradient)):
         direction = -(inverse @ gradient)
@@ -301,7 +307,8 @@ def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
             backtracked = True
         if not accepted:
             break
-        while not backtracked and evaluations < MAX_EVALUATIONS:  # a first step taken whole: double it while that lowers Phi
+        # a first step taken whole: doubled while that lowers Phi
+        while not backtracked and evaluations < MAX_EVALUATIONS:
             farther = x + 2.0 * t * direction
             farther_value, _p = reaction_value(farther, *args)
             evaluations += 1
@@ -311,8 +318,8 @@ def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
         if value - trial_value <= ROUNDING * abs(value) or np.abs(trial - x).max() <= SIMPLEX_SIZE:
             x, value = trial, trial_value  # at Phi's rounding: nothing left for differences to resolve
             break
-        new_gradient = _forward_gradient(trial, trial_value, args)
-        evaluations += k
+        new_gradient, taken = _forward_gradient(trial, trial_value, args)
+        evaluations += taken
         s, y = trial - x, new_gradient - gradient
         x, value, gradient = trial, trial_value, new_gradient
         sy = s @ y
