@@ -20,8 +20,10 @@ their reactions are k more unknowns (3 per held point): the structure stays, one
 Each element's share is the value of a convex problem in one multiplier, so Phi varies smoothly
 between the reactions at which a box starts or stops binding, where its curvature jumps. The
 search runs on F scaled by the strand's total external force over each held row's scale, from
-F = 0 (the root carries everything; a floored twin of the stabilization from the last search's F):
-BFGS with forward-difference gradients and an Armijo line search (Nocedal & Wright, Numerical
+F = 0 (the root carries everything; a floored twin of the stabilization from the last search's F;
+where a box admits no multiplier there, from the first F Nelder-Mead finds on the boxes' violation,
+``reaction_violation``, whose zeros are where Phi is finite but for statics_optimum's choice of
+rest lengths): BFGS with forward-difference gradients and an Armijo line search (Nocedal & Wright, Numerical
 Optimization, algorithm 6.1). Where a jump in curvature stopped it short (a small step along an
 axis, or a diagonal between two, still lowers Phi), one round of Nelder-Mead (Lagarias et al.,
 SIAM J. Optim. 9, 1998: reflection 1, expansion 2, contraction 1/2, shrink 1/2) on a small simplex
@@ -57,7 +59,7 @@ from sagfree.linalg.band import column_norms
 from sagfree.linalg.square import square_column_solves
 
 from .gauss_newton import regularizer_value
-from .statics_start import square_rest_system, statics_indices, statics_optimum
+from .statics_start import least_multipliers, square_rest_system, statics_indices, statics_optimum
 
 #: values of Phi per search, all its phases together
 MAX_EVALUATIONS = 4000
@@ -69,8 +71,8 @@ MAX_STEP = 1.0
 ARMIJO = 1e-4
 #: relative change of Phi below which the quasi-Newton phase stops (rounding: gauss_newton's ROUNDING)
 ROUNDING = 1e-13
-#: the simplex edge (scaled units) of the Nelder-Mead round that looks for a finite Phi where F = 0
-#: has none, and of the round that polishes the quasi-Newton phase's end (a kink can stop it short;
+#: the simplex edge (scaled units) of the Nelder-Mead round on the boxes' violation where Phi is inf
+#: at F = 0, and of the round that polishes the quasi-Newton phase's end (a kink can stop it short;
 #: also the axis steps that test for that)
 FIRST_STEP = 0.1
 POLISH_STEP = 1e-5
@@ -173,14 +175,39 @@ def reaction_value(x, change, basis, scale, p0, w, lower, upper, rate, multiplie
 
 
 @numba.njit(cache=True)
+def reaction_violation(x, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths,
+                       work):  # pragma: no cover - compiled
+    """V >= 0 at the scaled reactions x, zero exactly where Phi is finite (statics_start.
+    least_multipliers: every edge's interval of b non-empty and every vertex's least multiplier
+    within its upper bound): the edges' empty intervals and the vertices' excesses, each over its
+    multiplier's box; inf where a rest change has no room on its side at all."""
+    d = change + basis @ (scale * x)
+    low, high, least = least_multipliers(d, p0, w, lower, upper, rate, multiplier, rest, lengths)
+    violation = 0.0
+    for e in range(1, rate.size):  # the root edge's rest length acts on no free DOF
+        ia = multiplier[e]
+        width = upper[ia] - lower[ia]
+        gap = max(low[e] - high[e], 0.0) + (1e-12 * width - low[e] if low[e] <= 0.0 else 0.0)
+        violation += gap / width if width > 0.0 else (np.inf if gap > 0.0 else 0.0)
+    for v in range(bend.size):
+        ib = bend[v]
+        excess = least[v] - upper[ib]
+        if not np.isfinite(least[v]):
+            return np.inf
+        if excess > 0.0:
+            violation += excess / upper[ib]
+    return violation
+
+
+@numba.njit(cache=True)
 def least_over_reactions(start, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest,
                          lengths):  # pragma: no cover - compiled
     """(p, x, evaluations): statics_optimum at the scaled reactions x that minimize Phi (module
     docstring), p empty where every value met was inf, and the values of Phi it took (at most
     about MAX_EVALUATIONS). From ``start`` (F = 0 where Phi is inf there), or where Phi is inf at
-    F = 0 too from the best point of a Nelder-Mead round on a simplex of edge FIRST_STEP:
-    quasi-Newton, then, where it stopped short of a minimum (_improvable), a Nelder-Mead round on a
-    simplex of edge POLISH_STEP around its end."""
+    F = 0 too from the point where a Nelder-Mead round on V (reaction_violation, a simplex of edge
+    FIRST_STEP) reaches 0: quasi-Newton, then, where it stopped short of a minimum (_improvable), a
+    Nelder-Mead round on a simplex of edge POLISH_STEP around its end."""
     work = np.empty(p0.size)
     args = (change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work)
     x = start.copy()
@@ -190,13 +217,16 @@ def least_over_reactions(start, change, basis, scale, p0, w, lower, upper, rate,
         x[:] = 0.0
         value, _p = reaction_value(x, *args)
         evaluations += 1
-    if not np.isfinite(value):
-        x, value, evaluations = _nelder_mead_round(x, value, FIRST_STEP, evaluations, args)
+    if not np.isfinite(value):  # a reaction the boxes admit, first (V = 0)
+        violation = reaction_violation(x, *args)
+        x, violation, evaluations = _nelder_mead_round(x, violation, FIRST_STEP, evaluations + 1, True, args)
+        value, _p = reaction_value(x, *args)
+        evaluations += 1
     if np.isfinite(value):
         x, value, evaluations = _quasi_newton(x, value, evaluations, args)
         improvable, evaluations = _improvable(x, value, evaluations, args)
         if improvable:
-            x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, args)
+            x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, False, args)
     if not np.isfinite(value):
         return np.empty(0), x, evaluations
     value, p = reaction_value(x, *args)
@@ -228,17 +258,26 @@ def _improvable(x, value, evaluations, args):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _nelder_mead_round(x, value, step, evaluations, args):  # pragma: no cover - compiled
-    """(x, value, evaluations) at the best vertex of Nelder-Mead (_nelder_mead) from the simplex of
-    x and x + step e_i."""
+def _objective(x, violation, args):  # pragma: no cover - compiled
+    """Phi at x, or with ``violation`` V (reaction_violation)."""
+    if violation:
+        return reaction_violation(x, *args)
+    value, _p = reaction_value(x, *args)
+    return value
+
+
+@numba.njit(cache=True)
+def _nelder_mead_round(x, value, step, evaluations, violation, args):  # pragma: no cover - compiled
+    """(x, value, evaluations) at the best vertex of Nelder-Mead (_nelder_mead, on V with
+    ``violation``) from the simplex of x and x + step e_i."""
     k = x.size
     simplex, values = np.empty((k + 1, k)), np.empty(k + 1)
     simplex[0], values[0] = x, value
     for i in range(k):
         simplex[i + 1] = x
         simplex[i + 1, i] += step
-        values[i + 1], _p = reaction_value(simplex[i + 1], *args)
-    evaluations = _nelder_mead(simplex, values, evaluations + k, *args)
+        values[i + 1] = _objective(simplex[i + 1], violation, args)
+    evaluations = _nelder_mead(simplex, values, evaluations + k, violation, args)
     best = np.argmin(values)
     if values[best] < value:
         return simplex[best].copy(), values[best], evaluations
@@ -334,13 +373,11 @@ def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _nelder_mead(simplex, values, evaluations, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend,
-                 rest, lengths, work):  # pragma: no cover - compiled
-    """Nelder-Mead iterations on ``simplex`` (k + 1 rows) and its ``values`` in place until the
-    simplex is within SIMPLEX_SIZE or its values within VALUE_SPREAD, or MAX_EVALUATIONS; returns
-    the evaluations counted so far."""
+def _nelder_mead(simplex, values, evaluations, violation, args):  # pragma: no cover - compiled
+    """Nelder-Mead iterations on ``simplex`` (k + 1 rows) and its ``values`` in place, on Phi, or
+    with ``violation`` on V (reaction_violation), until the simplex is within SIMPLEX_SIZE or its
+    values within VALUE_SPREAD, V is 0, or MAX_EVALUATIONS; returns the evaluations counted so far."""
     k = simplex.shape[1]
-    args = (change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work)
     while evaluations < MAX_EVALUATIONS:
         order = np.argsort(values)
         simplex[:] = simplex[order]
@@ -351,16 +388,18 @@ def _nelder_mead(simplex, values, evaluations, change, basis, scale, p0, w, lowe
                 size = max(size, abs(simplex[i, j] - simplex[0, j]))
         if not np.isfinite(values[0]) or size <= SIMPLEX_SIZE or values[k] - values[0] <= VALUE_SPREAD * values[0]:
             break
+        if violation and values[0] <= 0.0:
+            break
         centroid = np.zeros(k)
         for i in range(k):
             centroid += simplex[i]
         centroid /= k
         reflected = 2.0 * centroid - simplex[k]
-        reflected_value, _p = reaction_value(reflected, *args)
+        reflected_value = _objective(reflected, violation, args)
         evaluations += 1
         if reflected_value < values[0]:
             expanded = 3.0 * centroid - 2.0 * simplex[k]
-            expanded_value, _p = reaction_value(expanded, *args)
+            expanded_value = _objective(expanded, violation, args)
             evaluations += 1
             if expanded_value < reflected_value:
                 simplex[k], values[k] = expanded, expanded_value
@@ -372,20 +411,20 @@ def _nelder_mead(simplex, values, evaluations, change, basis, scale, p0, w, lowe
             continue
         if reflected_value < values[k]:  # outside contraction
             contracted = 0.5 * (centroid + reflected)
-            contracted_value, _p = reaction_value(contracted, *args)
+            contracted_value = _objective(contracted, violation, args)
             evaluations += 1
             if contracted_value <= reflected_value:
                 simplex[k], values[k] = contracted, contracted_value
                 continue
         else:  # inside contraction
             contracted = 0.5 * (centroid + simplex[k])
-            contracted_value, _p = reaction_value(contracted, *args)
+            contracted_value = _objective(contracted, violation, args)
             evaluations += 1
             if contracted_value < values[k]:
                 simplex[k], values[k] = contracted, contracted_value
                 continue
         for i in range(1, k + 1):  # shrink towards the best vertex
             simplex[i] = 0.5 * (simplex[0] + simplex[i])
-            values[i], _p = reaction_value(simplex[i], *args)
+            values[i] = _objective(simplex[i], violation, args)
         evaluations += k
     return evaluations

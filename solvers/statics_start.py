@@ -102,21 +102,12 @@ def unbalanceable(problem: Problem, change: np.ndarray) -> str | None:
     if not square_rest_system(problem):
         return None
     layout = problem.layout
-    p0, lower, upper = layout.p0, layout.lower, layout.upper
+    lower, upper = layout.lower, layout.upper
     rate, multiplier, bend, rest = statics_indices(problem)
-    t, low, high = edge_intervals(change, lower, upper, rate, multiplier)
-    _, _, needed = vertex_needs(change, p0, layout.weights, lower, upper, rest)
+    low, high, least_multiplier = least_multipliers(change, layout.p0, layout.weights, lower, upper, rate, multiplier,
+                                                    rest, problem.edge_lengths)
     empty = np.flatnonzero(~((low > 0.0) & (low <= high)))
     empty = empty[empty > 0]  # the root edge's rest length acts on no free DOF
-    # the smallest rest length u = -t / b each edge allows (the root edge's: its box), and the
-    # smallest lbar-sum scale of each vertex (lbar_v + lbar_v+1 over l_v + l_v+1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        least_u = np.where(t > 0.0, -t / low, np.where(t < 0.0, -t / high, 0.0))
-    least_u[0] = lower[rate[0]]
-    lengths = problem.edge_lengths
-    least_scale = ((lengths[:-1] * (1.0 + least_u[:-1]) + lengths[1:] * (1.0 + least_u[1:]))
-                   / (lengths[:-1] + lengths[1:]))
-    least_multiplier = needed * least_scale
     short = np.flatnonzero(least_multiplier > upper[bend] * (1.0 + CERTAIN_EXCESS))
     if empty.size == 0 and short.size == 0:
         return None
@@ -230,6 +221,30 @@ def statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, l
     for k in range(p.size):
         p[k] = min(max(p[k], lower[k]), upper[k])
     return p
+
+
+@numba.njit(cache=True)
+def least_multipliers(change, p0, w, lower, upper, rate, multiplier, rest, lengths):  # pragma: no cover - compiled
+    """(low, high, least): each edge's interval [low, high] of b (edge_intervals; the element can
+    carry its force only where 0 < low <= high), and each vertex's least bend multiplier that keeps
+    its rest change in its box, needed x its smallest lbar-sum scale: the sum lbar_v + lbar_v+1 over
+    l_v + l_v+1 at the smallest rest lengths u = -t / b its two edges allow (the root edge's: its
+    box). With every edge's interval non-empty, every vertex at max(lower, least) <= its upper
+    bound balances the strand (``unbalanceable``)."""
+    t, low, high = edge_intervals(change, lower, upper, rate, multiplier)
+    _, _, needed = vertex_needs(change, p0, w, lower, upper, rest)
+    edges = rate.size
+    least_u = np.zeros(edges)
+    for e in range(edges):  # -t / 0 is -inf or +inf, as numpy divides (an empty interval)
+        if t[e] != 0.0:
+            side = low[e] if t[e] > 0.0 else high[e]
+            least_u[e] = -t[e] / side if side != 0.0 else -np.sign(t[e]) * np.inf
+    least_u[0] = lower[rate[0]]
+    least = np.empty(needed.size)
+    for v in range(needed.size):
+        sums = lengths[v] * (1.0 + least_u[v]) + lengths[v + 1] * (1.0 + least_u[v + 1])
+        least[v] = needed[v] * (sums / (lengths[v] + lengths[v + 1]))
+    return low, high, least
 
 
 @numba.njit(cache=True)

@@ -79,3 +79,24 @@ def test_a_default_solve_that_crawls_begins_again_from_the_other_start(monkeypat
     assert "from the linear start (p0 ended max_iterations)" in result.message
     assert result.iterations["outer"] > from_p0.iterations["outer"]
     assert result.objective == pytest.approx(searched.objective, rel=1e-9)
+
+
+def test_where_no_multiplier_fits_at_zero_reactions_the_search_starts_where_the_boxes_admit_one():
+    """Curvature and twist budgets cut to 0.05 rad: at F = 0 (the root carrying everything) some box
+    admits no multiplier (Phi = inf, the boxes' violation V > 0); Nelder-Mead on V finds reactions
+    where V = 0, and the search goes on from there to the optimum asc reaches from p0."""
+    strand = sagfree.scenes.groom(3, 40, seed=1)[2].attached(tip="pinned")
+    problem = Problem(strand, stabilize=False, bounds={"curvature_budget": 0.05, "twist_budget": 0.05})
+    change, basis, scale = reaction_family(problem)
+    layout = problem.layout
+    args = (change, basis, scale, layout.p0, layout.weights, layout.lower, layout.upper,
+            *reaction_start.statics_indices(problem), problem.edge_lengths, np.empty(layout.p0.size))
+    zero = np.zeros(basis.shape[1])
+    assert reaction_start.reaction_value(zero, *args)[0] == np.inf
+    assert reaction_start.reaction_violation(zero, *args) > 0
+    p = reaction_start.reaction_start(problem)
+    assert p is not None
+    result, from_p0 = sagfree.solve(problem), sagfree.solve(problem, start="p0")
+    assert result.status == from_p0.status == "converged", result.message
+    assert result.iterations["outer"] == 0
+    assert problem.objective(p) == pytest.approx(from_p0.objective, rel=1e-6)
