@@ -177,10 +177,12 @@ def reaction_value(x, change, basis, scale, p0, w, lower, upper, rate, multiplie
 @numba.njit(cache=True)
 def reaction_violation(x, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths,
                        work):  # pragma: no cover - compiled
-    """V >= 0 at the scaled reactions x, zero exactly where Phi is finite (statics_start.
-    least_multipliers: every edge's interval of b non-empty and every vertex's least multiplier
-    within its upper bound): the edges' empty intervals and the vertices' excesses, each over its
-    multiplier's box; inf where a rest change has no room on its side at all."""
+    """V >= 0 at the scaled reactions x: the edges' empty intervals of b and the vertices' least
+    multipliers above their upper bounds (statics_start.least_multipliers), each over its
+    multiplier's box; inf where a rest change has no room on its side at all. V = 0 exactly where
+    some p in the boxes carries these reactions (statics_start.unbalanceable's certificate, exact
+    both ways); Phi is finite there but where statics_optimum's choice of rest lengths leaves a
+    vertex above its bound (one of 24 strands with budgets cut to 0.2 rad, benchmarks/RESULTS.md)."""
     d = change + basis @ (scale * x)
     low, high, least = least_multipliers(d, p0, w, lower, upper, rate, multiplier, rest, lengths)
     violation = 0.0
@@ -190,12 +192,11 @@ def reaction_violation(x, change, basis, scale, p0, w, lower, upper, rate, multi
         gap = max(low[e] - high[e], 0.0) + (1e-12 * width - low[e] if low[e] <= 0.0 else 0.0)
         violation += gap / width if width > 0.0 else (np.inf if gap > 0.0 else 0.0)
     for v in range(bend.size):
-        ib = bend[v]
-        excess = least[v] - upper[ib]
         if not np.isfinite(least[v]):
             return np.inf
-        if excess > 0.0:
-            violation += excess / upper[ib]
+        ib = bend[v]
+        if least[v] > upper[ib]:
+            violation += (least[v] - upper[ib]) / upper[ib]
     return violation
 
 
