@@ -47,7 +47,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.sparse.linalg import LinearOperator
 
 from sagfree.formulation import dofs
 from sagfree.formulation.problem import Problem
@@ -120,7 +119,7 @@ class StaticSag:
         return state.converged
 
     def linearization(self, p: np.ndarray) -> "SagLinearization":
-        """The Jacobian at p as solvers.reflective applies it."""
+        """The Jacobian at p (``operator``) as solvers.reflective applies it."""
         return SagLinearization(self.operator(p))
 
     def residuals(self, p: np.ndarray) -> np.ndarray:
@@ -134,18 +133,11 @@ class StaticSag:
             self.visited.append((0.5 * float(residuals @ residuals), p.copy()))
         return residuals
 
-    def jacobian(self, p: np.ndarray) -> LinearOperator:
-        """d residuals / dp = W P K^-1 B at the equilibrium of p (W: the residuals' weights, P: the
-        position rows, K = d^2E/dq^2 on the free DOFs, B = D dc/dp there) as an operator: a product
-        with it or its transpose is one banded Cholesky solve and one sparse product, O(n)
-        (``sag_product``, ``sag_transposed_product``: the same kernels the trust-region steps run)."""
-        operator = self.operator(p)
-        return LinearOperator((self.positions.size, p.size), matvec=lambda v: sag_product(*operator, np.ravel(v)),
-                              rmatvec=lambda u: sag_transposed_product(*operator, np.ravel(u)), dtype=float)
-
     def operator(self, p: np.ndarray) -> tuple:
         """The arguments of ``sag_product`` and ``sag_transposed_product`` before the vector: the
-        Jacobian of the residuals at the equilibrium of p, as ``jacobian`` describes it."""
+        Jacobian of the residuals at the equilibrium of p, d residuals / dp = W P K^-1 B (W: the
+        residuals' weights, P: the position rows, K = d^2E/dq^2 on the free DOFs, B = D dc/dp
+        there), applied by one banded Cholesky solve and one sparse product, O(n)."""
         factor, (indptr, indices, data) = self._linearization(p)
         return (factor, indptr, indices, data, self.moving, self.moving_rows, self.moving_weights,
                 self.positions.size, p.size)
@@ -253,8 +245,8 @@ def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUA
 
 @timed(LINEAR_ALGEBRA)
 def sag_product(factor, indptr, indices, data, moving, rows, weights, size, columns, v) -> np.ndarray:
-    """J v for the least-sag Jacobian J = W P K^-1 B (StaticSag.jacobian; the arguments of
-    StaticSag.operator): one band solve and one sparse product."""
+    """J v for the least-sag Jacobian J = W P K^-1 B (the arguments of StaticSag.operator): one band
+    solve and one sparse product."""
     return _product(factor, indptr, indices, data, moving, rows, weights, size, np.ascontiguousarray(v, dtype=float))
 
 

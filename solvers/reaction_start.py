@@ -242,19 +242,17 @@ def _improvable(x, value, evaluations, args):  # pragma: no cover - compiled
     pinned at the middle (KKT distance 2.7e-3 at the search's end)."""
     k = x.size
     for i in range(k):
-        for j in range(i, k):  # the axes (j = i), then the diagonals between two axes
-            for sign_i in (-1.0, 1.0):
-                for sign_j in (-1.0, 1.0):
-                    if j == i and sign_j < 0.0:
-                        continue
-                    moved = x.copy()
-                    moved[i] += sign_i * POLISH_STEP
-                    if j != i:
-                        moved[j] += sign_j * POLISH_STEP
-                    moved_value, _p = reaction_value(moved, *args)
-                    evaluations += 1
-                    if moved_value < value - ROUNDING * abs(value):
-                        return True, evaluations
+        for j in range(i, k):  # the axis (j = i) either way, then the diagonals' four sign pairs
+            half = 1 if j == i else 2
+            for signs in range(2 * half):
+                moved = x.copy()
+                moved[i] += (-1.0 if signs < half else 1.0) * POLISH_STEP
+                if j != i:
+                    moved[j] += (-1.0 if signs % 2 == 0 else 1.0) * POLISH_STEP
+                moved_value, _p = reaction_value(moved, *args)
+                evaluations += 1
+                if moved_value < value - ROUNDING * abs(value):
+                    return True, evaluations
     return False, evaluations
 
 
