@@ -13,6 +13,7 @@ this way (``restiffen``; frontend.stabilize).
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .parameters import STRAND_BLOCK
@@ -106,6 +107,28 @@ def restiffen(problem: Problem, p: np.ndarray, stiffness: np.ndarray) -> np.ndar
     if "rest_length" in blocks:
         ix = blocks["rest_length"]
         new[ix] = rest_strain(rest_strain(old[ix]) * stretch)
+    return new
+
+
+@numba.njit(cache=True)
+def restiffened_elements(p, stiffness, p0, rate, multiplier, bend, rest):  # pragma: no cover - compiled
+    """``restiffen`` in one compiled call, with its bits, for per-element stiffness with the twist
+    coupled to bend and every block optimized (solvers.statics_start.applies; its block indices:
+    rest lengths ``rate``, stretch and bend multipliers, (S, 3) each vertex's rest curvature and
+    twist entries): the multipliers of ``stiffness``, the rest changes scaled by k / k'."""
+    new = p.copy()
+    for e in range(rate.size):
+        ia, iu = multiplier[e], rate[e]
+        new[ia] = stiffness[ia]
+        strain = -p[iu] / (1.0 + p[iu]) * (p[ia] / stiffness[ia])
+        new[iu] = -strain / (1.0 + strain)
+    for v in range(bend.size):
+        ib = bend[v]
+        new[ib] = stiffness[ib]
+        ratio = p[ib] / stiffness[ib]
+        for j in range(3):
+            i = rest[v, j]
+            new[i] = p0[i] + (p[i] - p0[i]) * ratio
     return new
 
 

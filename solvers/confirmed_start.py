@@ -17,7 +17,9 @@ measurement, not the solve's: its seconds are returned for solve_alm to leave ou
 Result.time. Where the path does not apply (no compiled stencils, bodies, another attachment, a
 rest system that is not square or singular, a box that admits no multiplier) the call returns
 None and solve_alm takes its Python path. Its kernel (``confirmed_kernel``) is also the first part
-of the front end's whole solve of such a strand, stabilization included (frontend.whole_solve).
+of the front end's whole solve of such a strand, stabilization included (frontend.whole_solve);
+its confirmation at a given start (``confirmed_at``) also confirms the reaction search's start of
+a strand held at more points there.
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ from sagfree.linalg.saddle import band_order
 from sagfree.linalg.square import square_solution
 
 from .gauss_newton import at_rest_residual, largest_magnitude
+from .reaction_start import applies as reaction_applies
 from .statics_start import applies, statics_indices, statics_optimum
 
 
@@ -89,12 +92,13 @@ def confirmed_start(problem: Problem, tol: float = TOL, kkt_tol: float = KKT_TOL
     return None
 
 
-def compiled_start_inputs(problem: Problem):
+def compiled_start_inputs(problem: Problem, held: bool = False):
     """(forces arguments, Jacobian arguments, free index, free rows' scales, dc/dp's CSC indptr and
     indices, its band order) for a compiled confirmed start of ``problem``, or None where there is
-    none: stencils or stability not compiled, no process clock, statics_start does not apply, or
-    the saddle system is not a band (Problem.at_rest_kernels, band_order)."""
-    if timing.CLOCK is None or not applies(problem):
+    none: stencils or stability not compiled, no process clock, statics_start does not apply (with
+    ``held``: reaction_start, a strand held at points besides its root), or the saddle system is
+    not a band (Problem.at_rest_kernels, band_order)."""
+    if timing.CLOCK is None or not (reaction_applies(problem) if held else applies(problem)):
         return None
     kernels = problem.at_rest_kernels
     if kernels is None or problem.stability_kernels is None:
@@ -161,15 +165,28 @@ def confirmed_kernel(forces_args, jacobian_args, free, row_scale, indptr, indice
 def confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
                       multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
                       clock_id, stability, seconds, violations):  # pragma: no cover - compiled
-    """confirmed_kernel from the least rest change on: the optimum it fixes, c and dc/dp there (|c|_inf
-    into violations[1]), the KKT distance and the stability (f0, values0: passed through;
-    stability: confirmed_kernel's arguments of the stability evaluation). Also the stabilization's
-    compiled re-solves (frontend.floor_steps.stabilization_rounds)."""
-    buffer = np.zeros(2, dtype=np.int64)
+    """confirmed_kernel from the least rest change on: the optimum it fixes, then ``confirmed_at``
+    there (f0, values0: passed through)."""
     empty = np.empty(0)
     optimum = statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
     if optimum.size == 0:
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
+    return confirmed_at(optimum, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
+                        position, change, f0, values0, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds,
+                        violations)
+
+
+@numba.njit(cache=True)
+def confirmed_at(optimum, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, position,
+                 change, f0, values0, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds,
+                 violations):  # pragma: no cover - compiled
+    """confirmed_kernel's outcome at a start ``optimum`` (the statics optimum, or the reaction
+    search's: solvers.reaction_start): clipped into the box, c and dc/dp there (|c|_inf into
+    violations[1]), the KKT distance and the stability (stability: confirmed_kernel's arguments of
+    the stability evaluation; change, f0, values0: passed through). Also the stabilization's
+    compiled re-solves (frontend.floor_steps.stabilization_rounds)."""
+    buffer = np.zeros(2, dtype=np.int64)
+    empty = np.empty(0)
     p = np.minimum(np.maximum(optimum, lower), upper)  # solve_alm's np.clip
     start = timing.clock_seconds(clock, clock_id, buffer)
     c, f = at_rest_residual(p, forces_args, free, row_scale)

@@ -31,7 +31,9 @@ around its end follows. On groom strands with a pinned tip or a pin (k = 3) that
 of Phi, where Nelder-Mead alone took ~420. The whole search is one compiled call
 (``reaction_values`` counts its values). asc then confirms the point by its KKT distance, as it
 confirms a root-held strand's start, or polishes it (a kink whose descent runs along none of
-those directions leaves the search short).
+those directions leaves the search short). The front end's whole solve (frontend.whole_solve) runs
+the search, that confirmation and the stabilization's re-solves in one compiled call
+(``family_optimum``, its searches logged in a ``search_state``).
 
 Why: from p0 or the linear start the augmented Lagrangian has to find the reactions through the
 whole parameter space, where the problem is nonconvex; it crawled to max_iterations at feasible
@@ -46,8 +48,6 @@ outside d(F)), and where the companion's system is square; ``None`` elsewhere an
 evaluated admits multipliers (a strand the boxes may not balance: asc's own path decides).
 """
 from __future__ import annotations
-
-import weakref
 
 import numba
 import numpy as np
@@ -80,8 +80,6 @@ POLISH_STEP = 1e-5
 SIMPLEX_SIZE = 1e-10
 VALUE_SPREAD = 1e-15
 
-# the search's outcome by Problem (its floored twins are other Problems)
-_FOUND: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def compile_kernels() -> None:
@@ -109,26 +107,39 @@ def applies(problem: Problem) -> bool:
 
 def reaction_start(problem: Problem, counts: dict | None = None) -> np.ndarray | None:
     """The least R over the held points' reactions (module docstring), or None where the module does
-    not apply or no reaction tried admits multipliers; searched once per Problem, the values of Phi
-    it took added to ``counts["reaction_values"]`` when it searches."""
-    if problem not in _FOUND:
-        _FOUND[problem], evaluations = _searched(problem)
-        if counts is not None:
-            counts["reaction_values"] = counts.get("reaction_values", 0) + evaluations
-    found = _FOUND[problem]
-    return None if found is None else found.copy()
+    not apply or no reaction tried admits multipliers; searched once per box (the Problem and its
+    floored twins with the same lower bounds share it: a compiled whole solve that hands a strand
+    back leaves its searches here, remember_searches). The values of Phi a search took are added to
+    ``counts["reaction_values"]`` by the first call that passes ``counts``."""
+    found = problem.bound_independent("reaction searches", dict)
+    key = problem.layout.lower.tobytes()
+    if key not in found:
+        found[key] = list(_searched(problem))
+    entry = found[key]
+    if counts is not None and entry[1]:
+        counts["reaction_values"] = counts.get("reaction_values", 0) + entry[1]
+        entry[1] = 0
+    return None if entry[0] is None else entry[0].copy()
+
+
+def held_family(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(d0, N, scale, last reactions) of ``problem`` (reaction_family, and the search's last scaled
+    reactions, shared with its floored twins), or None where the module does not apply."""
+    if not applies(problem):
+        return None
+    family = problem.bound_independent("reaction family", lambda: reaction_family(problem))
+    if family is None:
+        return None
+    return (*family, problem.bound_independent("last reactions", lambda: np.zeros(family[1].shape[1])))
 
 
 def _searched(problem: Problem) -> tuple[np.ndarray | None, int]:
-    if not applies(problem):
-        return None, 0
-    family = problem.bound_independent("reaction family", lambda: reaction_family(problem))
+    family = held_family(problem)
     if family is None:
         return None, 0
-    change, basis, scale = family
+    change, basis, scale, last = family
     layout = problem.layout
     # the last search's reactions, shared with the floored twins: a floor moves the optimum a little
-    last = problem.bound_independent("last reactions", lambda: np.zeros(basis.shape[1]))
     p, reactions, evaluations = least_over_reactions(last, change, basis, scale, layout.p0, layout.weights,
                                                      layout.lower, layout.upper, *statics_indices(problem),
                                                      problem.edge_lengths)
@@ -198,6 +209,57 @@ def reaction_violation(x, change, basis, scale, p0, w, lower, upper, rate, multi
         if least[v] > upper[ib]:
             violation += (least[v] - upper[ib]) / upper[ib]
     return violation
+
+
+def search_state(change: np.ndarray, basis: np.ndarray, scale: np.ndarray, reactions: np.ndarray,
+                 searches: int) -> tuple:
+    """family_optimum's ``search`` tuple: the family (d0, N, scale; N without a column for a strand
+    held by its root alone, whose start is then statics_optimum), the scaled reactions to start from
+    (a copy), the values of Phi taken (int64 [1]), and the log of at most ``searches`` searches: each
+    one's lower bounds, p (where found), values of Phi and whether it found one, and how many were
+    logged (int64 [1])."""
+    rows = searches if basis.shape[1] else 0
+    return (change, basis, scale, reactions.copy(), np.zeros(1, dtype=np.int64), np.empty((rows, basis.shape[0])),
+            np.empty((rows, basis.shape[0])), np.zeros(rows, dtype=np.int64), np.zeros(rows, dtype=np.bool_),
+            np.zeros(1, dtype=np.int64))
+
+
+def remember_searches(problem: Problem, search: tuple, counted: bool) -> None:
+    """The searches a compiled call logged in ``search`` (search_state) remembered as reaction_start's
+    outcomes for the boxes they searched, their values of Phi left for the solve that reads each
+    to count unless ``counted``; the shared last reactions set to the last search's end."""
+    _, basis, _, reactions, _, lowers, found, values, found_any, logged = search
+    if basis.shape[1] == 0:
+        return
+    memo = problem.bound_independent("reaction searches", dict)
+    for row in range(int(logged[0])):
+        memo[lowers[row].tobytes()] = [found[row].copy() if found_any[row] else None, 0 if counted else
+                                       int(values[row])]
+    problem.bound_independent("last reactions", lambda: np.zeros(basis.shape[1]))[:] = reactions
+
+
+@numba.njit(cache=True)
+def family_optimum(search, p0, w, lower, upper, rate, multiplier, bend, rest, lengths):  # pragma: no cover - compiled
+    """asc's start under the box [lower, upper] in one compiled call: statics_optimum of the least
+    rest change where the family in ``search`` (search_state) has no reaction (a strand held by its
+    root alone), else least_over_reactions from its reactions, which receive its end (as
+    reaction_start's "last reactions" do), its values of Phi counted and the search logged (while
+    the log has room); empty where it finds none."""
+    change, basis, scale, reactions, evaluations, lowers, found, values, found_any, logged = search
+    if basis.shape[1] == 0:
+        return statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
+    p, x, taken = least_over_reactions(reactions, change, basis, scale, p0, w, lower, upper, rate, multiplier,
+                                       bend, rest, lengths)
+    reactions[:] = x
+    evaluations[0] += taken
+    row = logged[0]
+    if row < values.size:
+        lowers[row] = lower
+        values[row], found_any[row] = taken, p.size > 0
+        if p.size:
+            found[row] = p
+        logged[0] = row + 1
+    return p
 
 
 @numba.njit(cache=True)

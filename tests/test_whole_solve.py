@@ -6,6 +6,8 @@ import pytest
 
 import sagfree
 import sagfree.frontend.stabilize as stabilize
+from sagfree.solvers import reaction_start
+from sagfree.solvers.reaction_start import least_over_reactions
 from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
 from sagfree.frontend.stabilize import FLOOR_STEPS, MAX_ROUNDS, OVERSHOOT, RELEVANT
@@ -31,9 +33,18 @@ def counted(monkeypatch) -> list:
     return answers
 
 
+def held(strands):
+    """The strands with their tips pinned, every fourth pinned at a third of its length too."""
+    return [s.attached(tip="pinned", pins=(len(s.points) // 3,) if i % 4 == 0 else ()) for i, s in enumerate(strands)]
+
+
+@pytest.mark.parametrize("kind", ["root", "held"])
 @pytest.mark.parametrize("options", [{}, {"stabilize": False}, {"min_eigenvalue": 50.0}])
-def test_the_whole_solve_is_the_two_calls_result(options, monkeypatch):
+def test_the_whole_solve_is_the_two_calls_result(options, kind, monkeypatch):
+    """For strands held at more points the two calls are solve_alm from the reaction search and the
+    Python loop of floors (frontend.stabilize.floors_loop), whose re-solves search again."""
     strands = sagfree.scenes.groom(40, 60, seed=0)
+    strands = strands if kind == "root" else held(strands)
     answers = counted(monkeypatch)
     whole = [sagfree.solve(Problem(strand, **options)) for strand in strands]
     monkeypatch.setattr(stabilize, "whole_solve", lambda *args, **kwargs: None)
@@ -61,18 +72,36 @@ def test_the_whole_solve_computes_the_margin_the_problem_does():
 
 
 def test_the_whole_solve_leaves_other_strands_to_the_usual_path(monkeypatch):
-    """A pinned tip, pins, or a start that needs asc's outer loop: the call declines before anything
-    is kept, and the strand is solved the usual way."""
+    """A clamped tip, one stiffness multiplier per strand, or a start that needs asc's outer loop:
+    the call declines before anything is kept, and the strand is solved the usual way."""
     strand = sagfree.scenes.groom(1, 60, seed=0)[0]
-    pinned = [strand.attached(tip="pinned"), strand.attached(pins=[30])]
     answers = counted(monkeypatch)
-    for held in pinned:
-        result = sagfree.solve(Problem(held))
+    for problem in (Problem(strand.attached(tip="clamped")), Problem(strand.attached(tip="pinned"),
+                                                                     stiffness="strand")):
+        result = sagfree.solve(problem)
         assert result.status == "converged", result.message
-    assert answers == [None, None]
+    assert answers and all(answer is None for answer in answers)
     loose = Problem(strand)
     stiffness = loose.layout.block_mask((*STIFFNESS_BLOCKS, STRAND_BLOCK))
     assert whole_solve(loose, stiffness, OVERSHOOT, RELEVANT, FLOOR_STEPS, MAX_ROUNDS, 1e-8, 1e-30) is None
     assert loose.remembered("least rest change") is None  # nothing kept: the usual path starts afresh
     result = sagfree.solve(loose, kkt_tol=1e-30)
     assert result.iterations["outer"] > 0
+
+
+def test_a_declined_held_solve_hands_its_searches_over(monkeypatch):
+    """A held strand whose start the call cannot confirm (a KKT tolerance below what the search
+    reaches): the solve that takes over starts from the call's search, without searching again,
+    and its Result is the usual path's, counts of Phi's values included."""
+    strand = sagfree.scenes.groom(1, 60, seed=0)[0].attached(tip="pinned")
+    answers = counted(monkeypatch)
+    searches = []
+    monkeypatch.setattr(reaction_start, "least_over_reactions", lambda *args: searches.append(1) or
+                        least_over_reactions(*args))
+    declined = sagfree.solve(Problem(strand), kkt_tol=1e-10)
+    assert answers == [None]
+    taken = len(searches)  # the stabilization's re-solves' searches, after the call's first one
+    monkeypatch.setattr(stabilize, "whole_solve", lambda *args, **kwargs: None)
+    usual = sagfree.solve(Problem(strand), kkt_tol=1e-10)
+    assert len(searches) == 2 * taken + 1 and same_results(declined, usual)
+    assert declined.iterations["outer"] > 0 and declined.iterations["reaction_values"] > 0

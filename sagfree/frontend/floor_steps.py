@@ -23,6 +23,11 @@ the solutions and the eigenvalues are the Python loop's (frontend.stabilize.floo
 bit (tests/test_floor_steps.py); only the intermediate Results and floored Problems are not made.
 Where a re-solve is not confirmed at once (asc's outer loop would polish it) the call hands the
 whole loop back to Python, which starts it again.
+
+The same rounds serve a strand held at points besides its root (frontend.whole_solve): there each
+check is at the solution restiffened onto the floors (rest_change.restiffened_elements, the Python
+path's landing) and each re-solve's start is the reaction search under the new floors
+(solvers.reaction_start.family_optimum).
 """
 from __future__ import annotations
 
@@ -33,11 +38,13 @@ import numpy as np
 
 from sagfree.formulation import at_rest
 from sagfree.formulation.problem import Problem
+from sagfree.formulation.rest_change import restiffened_elements
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.pairwise import pairwise_sum
-from sagfree.solvers.confirmed_start import CONFIRMED, compiled_start_inputs, confirmed_optimum
+from sagfree.solvers.confirmed_start import compiled_start_inputs, confirmed_at
 from sagfree.solvers.gauss_newton import at_rest_residual
-from sagfree.solvers.statics_start import applies, statics_indices, statics_optimum
+from sagfree.solvers.reaction_start import family_optimum, search_state
+from sagfree.solvers.statics_start import applies, statics_indices
 
 #: checked_floors' kernel outcomes: floors raised; no multiplier that would raise the eigenvalue has
 #: room (the strand cannot be stabilized inside the boxes); the compiled path does not apply here;
@@ -92,11 +99,11 @@ def checked_floors(problem: Problem, p: np.ndarray, value: float, mode: np.ndarr
     forces_args, _, free, row_scale, _ = kernels
     layout = problem.layout
     seconds = np.zeros(2)
-    outcome, floors, landing, landing_value, landing_mode = _checked_floors(
+    outcome, floors, landing, landing_value, landing_mode, _ = _checked_floors(
         np.ascontiguousarray(p, dtype=float), float(value), np.ascontiguousarray(mode, dtype=float), layout.lower,
         layout.upper, layout.weights, stiffness, float(margin), float(overshoot), float(relevant), int(steps),
-        float(tol), change, layout.p0, *statics_indices(problem), problem.edge_lengths, forces_args, free, row_scale,
-        *stability, stiffening, *timing.CLOCK, seconds)
+        float(tol), root_held_search(change), layout.p0, *statics_indices(problem), problem.edge_lengths,
+        forces_args, free, row_scale, *stability, stiffening, *timing.CLOCK, seconds)
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     if outcome == _NOT_APPLICABLE:
@@ -109,31 +116,38 @@ def checked_floors(problem: Problem, p: np.ndarray, value: float, mode: np.ndarr
 
 
 @numba.njit(cache=True)
-def _checked_floors(p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps, tol, change,
+def _checked_floors(p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps, tol, search,
                     p0, rate, multiplier, bend, rest, lengths, forces_args, free, row_scale, hessian_args, eigen_args,
                     scale, free_index, stiffening_args, clock, clock_id, seconds):  # pragma: no cover - compiled
-    """(outcome, floors, last landing, its eigenvalue, its mode) of checked_floors: the step from p,
-    then at most ``steps`` checks, each at the floored problem's statics optimum (not clipped, as
-    alm.linear_start gives it), stepping again from there while its eigenvalue is below the margin.
+    """(outcome, floors, last landing, its eigenvalue, its mode, the lower bounds it landed under) of
+    checked_floors: the step from p, then at most ``steps`` checks, each at the floored problem's
+    start (reaction_start.family_optimum of ``search``: not clipped, as alm.linear_start gives it;
+    for a strand held at points besides its root, whose start is a search, p restiffened onto the
+    floors, as stabilize._landing makes it), stepping again from there while its eigenvalue is
+    below the margin; the lower bounds are empty where the landing is not the floored start.
     seconds[0] and [1] accumulate model evaluation and linear algebra."""
     buffer = np.zeros(2, dtype=np.int64)
     empty = np.empty(0)
     gradient = at_rest.stiffening_gradient(mode, p, *stiffening_args)
     floors = raised_floors(gradient, p, lower, upper, weights, stiffness, value, margin, overshoot, relevant)
     if floors.size == 0:
-        return _NO_ROOM, empty, empty, np.nan, empty
-    landing, landing_value, landing_mode = empty, np.nan, empty
+        return _NO_ROOM, empty, empty, np.nan, empty, empty
+    held = search[1].shape[1] > 0
+    landing, landing_value, landing_mode, floored = empty, np.nan, empty, empty
     for _ in range(steps):
         floored = np.minimum(np.maximum(lower, floors), upper)  # Problem.with_lower_bounds
-        landing = statics_optimum(change, p0, weights, floored, upper, rate, multiplier, bend, rest, lengths)
-        if landing.size == 0 or np.array_equal(landing, p0):  # the Python path's spread start, or p0's Hessian
-            return _NOT_APPLICABLE, empty, empty, np.nan, empty
-        start = timing.clock_seconds(clock, clock_id, buffer)
-        c, _ = at_rest_residual(landing, forces_args, free, row_scale)
-        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - start
-        for r in range(c.size):
-            if not abs(c[r]) <= tol:  # stabilize._landing restiffens instead
-                return _NOT_APPLICABLE, empty, empty, np.nan, empty
+        if held:  # stabilize._landing: p restiffened onto the floors, c kept
+            landing = restiffened_elements(p, np.maximum(p, floored), p0, rate, multiplier, bend, rest)
+        else:
+            landing = family_optimum(search, p0, weights, floored, upper, rate, multiplier, bend, rest, lengths)
+            if landing.size == 0 or np.array_equal(landing, p0):  # the Python path's spread start, or p0's Hessian
+                return _NOT_APPLICABLE, empty, empty, np.nan, empty, empty
+            start = timing.clock_seconds(clock, clock_id, buffer)
+            c, _ = at_rest_residual(landing, forces_args, free, row_scale)
+            seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - start
+            for r in range(c.size):
+                if not abs(c[r]) <= tol:  # stabilize._landing restiffens instead
+                    return _NOT_APPLICABLE, empty, empty, np.nan, empty, empty
         landing_value, landing_mode = at_rest.stability(landing, hessian_args, eigen_args, scale, free_index, clock,
                                                         clock_id, seconds)
         if landing_value >= margin:
@@ -144,7 +158,7 @@ def _checked_floors(p, value, mode, lower, upper, weights, stiffness, margin, ov
         if more.size == 0:
             break
         floors = more
-    return _RAISED, floors, landing, landing_value, landing_mode
+    return _RAISED, floors, landing, landing_value, landing_mode, empty if held else floored
 
 
 class Rounds(NamedTuple):
@@ -181,7 +195,8 @@ def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np
     ending, rounds, lower, p, value, mode, f, values, violation, distance = _stabilization_rounds(
         np.ascontiguousarray(p, dtype=float), float(value), np.ascontiguousarray(mode, dtype=float), layout.lower,
         layout.upper, layout.weights, stiffness, float(margin), float(overshoot), float(relevant), int(steps),
-        int(max_rounds), float(tol), float(kkt_tol), float(near), change, layout.p0, *statics_indices(problem),
+        int(max_rounds), float(tol), float(kkt_tol), float(near), root_held_search(change), layout.p0,
+        *statics_indices(problem),
         problem.edge_lengths, forces_args, jacobian_args, free, row_scale, indptr, indices, position, lapack.DGBTRF,
         lapack.DGBTRS, *stability, stiffening, *timing.CLOCK, seconds)
     timing.add(timing.MODEL, seconds[0])
@@ -196,29 +211,31 @@ def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np
 
 @numba.njit(cache=True)
 def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps,
-                          max_rounds, tol, kkt_tol, near, change, p0, rate, multiplier, bend, rest, lengths,
+                          max_rounds, tol, kkt_tol, near, search, p0, rate, multiplier, bend, rest, lengths,
                           forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf, dgbtrs,
                           hessian_args, eigen_args, scale, free_index, stiffening_args, clock, clock_id,
                           seconds):  # pragma: no cover - compiled
     """(ending, rounds, lower bounds, p, its eigenvalue and mode, f and dc/dp values at p, |c|_inf,
     KKT distance) of stabilization_rounds: floors_loop's turns, each round _checked_floors and the
-    floored problem's confirmed start (confirmed_optimum, from the least rest change ``change``),
-    its stability the landing's where it is the landing (the memo the Python path reads), else
-    measured. seconds[0] and [1] accumulate model evaluation and linear algebra."""
+    floored problem's confirmed start (confirmed_at the floored start, reaction_start.family_optimum
+    of ``search``: the round's last landing where it landed under these floors, as the start's memo
+    gives it to the Python path's re-solve), its stability the landing's where it is the landing
+    (the memo the Python path reads), else measured. seconds[0] and [1] accumulate model
+    evaluation and linear algebra."""
     empty = np.empty(0)
     timed = seconds[:2]
     # the stability is measured below; a runtime False (empty.size > 0): a literal False would type the
-    # tuple apart from confirmed_kernel's and compile confirmed_optimum a second time
+    # tuple apart from confirmed_kernel's and compile confirmed_at a second time
     unmeasured = (empty.size > 0, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
     rounds, f, values, violation, distance = 0, empty, empty, np.nan, np.nan
-    violations = np.empty(2)  # confirmed_optimum's |c|_inf at p0 (unused here) and at its p
+    violations = np.empty(2)  # confirmed_at's |c|_inf at p0 (unused here) and at its p
     while True:
         if value >= margin:
             return _STABLE, rounds, lower, p, value, mode, f, values, violation, distance
         if rounds == max_rounds:
             return _MAX_ROUNDS, rounds, lower, p, value, mode, f, values, violation, distance
-        outcome, floors, landing, landing_value, landing_mode = _checked_floors(
-            p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps, tol, change, p0,
+        outcome, floors, landing, landing_value, landing_mode, landed = _checked_floors(
+            p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps, tol, search, p0,
             rate, multiplier, bend, rest, lengths, forces_args, free, row_scale, hessian_args, eigen_args, scale,
             free_index, stiffening_args, clock, clock_id, timed)
         if outcome == _NOT_APPLICABLE:
@@ -226,12 +243,14 @@ def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, marg
         if outcome == _NO_ROOM:
             return _NO_ROOM, rounds, lower, p, value, mode, f, values, violation, distance
         lower = np.minimum(np.maximum(lower, floors), upper)  # Problem.with_lower_bounds
-        solved, _, p, _, _, f, values, distance, _, _ = confirmed_optimum(
-            forces_args, jacobian_args, free, row_scale, indptr, indices, p0, weights, lower, upper, rate,
-            multiplier, bend, rest, lengths, position, change, empty, empty, dgbtrf, dgbtrs, near, clock, clock_id,
-            unmeasured, seconds, violations)
-        if solved != CONFIRMED:
+        start = landing
+        if not np.array_equal(landed, lower):
+            start = family_optimum(search, p0, weights, lower, upper, rate, multiplier, bend, rest, lengths)
+        if start.size == 0:
             return _NOT_APPLICABLE, rounds, lower, p, value, mode, f, values, violation, distance
+        _, _, p, _, _, f, values, distance, _, _ = confirmed_at(
+            start, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, weights, lower, upper, position,
+            search[0], empty, empty, dgbtrf, dgbtrs, near, clock, clock_id, unmeasured, seconds, violations)
         violation = violations[1]
         if not (violation <= tol and distance <= kkt_tol):  # asc's outer loop would go on from here
             return _NOT_APPLICABLE, rounds, lower, p, value, mode, f, values, violation, distance
@@ -240,3 +259,9 @@ def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, marg
         else:
             value, mode = at_rest.stability(p, hessian_args, eigen_args, scale, free_index, clock, clock_id, timed)
         rounds += 1
+
+
+def root_held_search(change: np.ndarray) -> tuple:
+    """The compiled rounds' ``search`` (reaction_start.search_state) for a strand held by its root
+    alone: its least rest change, and no reaction (family_optimum is then statics_optimum)."""
+    return search_state(change, np.empty((change.size, 0)), np.empty(0), np.empty(0), 0)

@@ -1,4 +1,4 @@
-"""asc's whole solve of a strand held by its root alone, its stabilization included, in one compiled call.
+"""asc's whole solve of a strand, its stabilization included, in one compiled call.
 
 For most strands of a groom, asc's solve is its start (the statics optimum), the KKT distance that
 confirms it and the stability there (solvers.confirmed_start), and where that optimum is below the
@@ -8,10 +8,20 @@ the first solve's Result, the margin test (Problem.meets_margin: the Rayleigh qu
 the unstressed strand's eigenvalue) and the rounds' inputs. ``whole_solve`` makes them one call, in
 the same order on the same inputs, so its start, margin verdict, floors, solution and eigenpairs
 are the two calls' bit for bit (tests/test_whole_solve.py); the front end then builds the one
-Result (frontend.stabilize). Where any part leaves that path (the start is not confirmed at once, it
-is p0 itself, a round's re-solve would need asc's outer loop, or the path does not apply at all:
-confirmed_start's conditions) the call says so and nothing of it is kept: the caller solves the
-strand the usual way, from scratch.
+Result (frontend.stabilize).
+
+A strand held at points besides its root (a pinned tip, pins) takes the same call with the reaction
+search (solvers.reaction_start) as its start and as each floored landing and re-solve: its family
+of balancing rest changes is computed before the call (one band LU of its root-held companion,
+memoized with the Problem), and the call's start, floors, solutions and counts of Phi's values are
+the Python path's (solve_alm from the reaction start, then frontend.stabilize.floors_loop with the
+searched landings) bit for bit.
+
+Where any part leaves that path (the start is not confirmed at once, it is p0 itself, a round's
+re-solve would need asc's outer loop, or the path does not apply at all: confirmed_start's
+conditions) the call says so and nothing of it is kept, but for a held strand's first search (the
+solve that takes over starts from it, as it would have found it): the caller solves the strand the
+usual way, from scratch.
 """
 from __future__ import annotations
 
@@ -24,7 +34,9 @@ from sagfree.formulation import at_rest
 from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import STABILITY_FRACTION, Problem
 from sagfree.linalg import lapack, timing
-from sagfree.solvers.confirmed_start import CONFIRMED, confirmed_kernel, compiled_start_inputs
+from sagfree.solvers.confirmed_start import CONFIRMED, compiled_start_inputs, confirmed_at, confirmed_kernel
+from sagfree.solvers.gauss_newton import at_rest_residual, largest_magnitude
+from sagfree.solvers.reaction_start import family_optimum, held_family, remember_searches, search_state
 from sagfree.solvers.statics_start import statics_indices
 
 from .floor_steps import _NOT_APPLICABLE, _STABLE, ENDINGS, _stabilization_rounds
@@ -40,7 +52,8 @@ class WholeSolve(NamedTuple):
     stabilization), its rounds and ending
     (floor_steps.ENDINGS; "stable" without a round where the first solve is stable or the problem
     is not stabilized), the floored lower bounds, and the last solution p with its |c|_inf, KKT
-    distance and smallest eigenvalue (the first solve's where no round was taken)."""
+    distance and smallest eigenvalue (the first solve's where no round was taken); the values of
+    the reaction search's Phi it took (0 for a strand held by its root alone)."""
     first: np.ndarray
     start_violation: float
     first_violation: float
@@ -54,6 +67,7 @@ class WholeSolve(NamedTuple):
     violation: float
     distance: float
     value: float
+    reaction_values: int
 
 
 def whole_solve(problem: Problem, stiffness: np.ndarray, overshoot: float, relevant: float, steps: int,
@@ -62,11 +76,21 @@ def whole_solve(problem: Problem, stiffness: np.ndarray, overshoot: float, relev
     stabilization's rounds (frontend.stabilize: the floors of the multipliers ``stiffness`` by the
     first-order steps with ``overshoot``, ``relevant``, ``steps``, at most ``max_rounds``) in one
     compiled call (module docstring), or None where that path does not hold. Fills the Problem's
-    memos as the two calls do (c and dc/dp at p0 and at the last p, the least rest change, the
-    eigenpair at the last p, the margin where it was computed), where the Result reads them."""
-    kernels = compiled_start_inputs(problem)
+    memos as the two calls do (c and dc/dp at p0 and at the last p, the least rest change or the
+    reaction search's outcome, the eigenpair at the last p, the margin where it was computed), where
+    the Result reads them."""
+    kernels = compiled_start_inputs(problem, held=True)
+    held = kernels is not None
+    kernels = kernels if held else compiled_start_inputs(problem)
     if kernels is None or problem.remembered("least rest change") is not None:
         return None  # (a twin's memo: confirmed_start would take its stabilization-twin branch)
+    if held:
+        family = held_family(problem)
+        if family is None or problem.layout.lower.tobytes() in problem.bound_independent("reaction searches", dict):
+            return None  # (searched before: the solve reads that memo)
+        search = search_state(*family, 1 + max_rounds * (steps + 1))  # room for every search it may take
+    else:
+        search = search_state(np.empty(0), np.empty((problem.layout.p0.size, 0)), np.empty(0), np.empty(0), 0)
     stiffening, form = problem.stiffening_kernel, problem.unstressed_form_kernel
     if stiffening is None or form is None:
         return None
@@ -82,15 +106,18 @@ def whole_solve(problem: Problem, stiffness: np.ndarray, overshoot: float, relev
         layout.weights, layout.lower, layout.upper, *statics_indices(problem), problem.edge_lengths, position,
         lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK, float(tol), float(kkt_tol), *stability,
         stabilize, float(known), form, problem.dof_masses, stiffness, float(overshoot), float(relevant), int(steps),
-        int(max_rounds), stiffening, seconds, violations, outputs)
+        int(max_rounds), stiffening, search, seconds, violations, outputs)
+    # the searches are kept whatever follows: a solve that takes over reads them, and counts their values
+    remember_searches(problem, search, counted=ending != _DECLINED)
     if ending == _DECLINED:
         return None
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     # the memos confirmed_start and stabilization_rounds fill
-    problem.remember_at_rest(layout.p0, f0, values0)
-    problem.bound_independent("square rest system", lambda: True)
-    problem.bound_independent("least rest change", lambda: change)
+    if not held:
+        problem.remember_at_rest(layout.p0, f0, values0)
+        problem.bound_independent("square rest system", lambda: True)
+        problem.bound_independent("least rest change", lambda: change)
     problem.remember_at_rest(first, first_f, first_values)
     problem.remember_stability(first, float(first_value), first_mode)
     margin = outputs[4]
@@ -103,30 +130,55 @@ def whole_solve(problem: Problem, stiffness: np.ndarray, overshoot: float, relev
     return WholeSolve(first, float(violations[0]), float(outputs[0]), float(outputs[1]), float(seconds[2]),
                       float(margin), int(rounds), ENDINGS[ending], lower, p, float(outputs[2] if rounds else
                                                                                  outputs[0]),
-                      float(distance), float(value))
+                      float(distance), float(value), int(search[4][0]))
 
 
 @numba.njit(cache=True)
 def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
                  multiplier, bend, rest, lengths, position, dgbtrf, dgbtrs, near, clock, clock_id, tol, kkt_tol,
                  hessian_args, eigen_args, scale, free_index, stabilize, margin, form_args, masses, stiffness,
-                 overshoot, relevant, steps, max_rounds, stiffening_args, seconds,
-                 violations, outputs):  # pragma: no cover - compiled
+                 overshoot, relevant, steps, max_rounds, stiffening_args, search, seconds, violations,
+                 outputs):  # pragma: no cover - compiled
     """(ending, rounds, least rest change, first p, f and dc/dp values at p0 and at the first p, the
     first p's eigenvalue and mode, the floored lower bounds, the last p, f and dc/dp values there,
-    its eigenvalue and mode) of whole_solve: solvers.confirmed_start's confirmed_kernel, then
-    Problem.meets_margin's test (``margin``: the known margin, or NaN: the Rayleigh quotient bound
-    first, then STABILITY_FRACTION of the unstressed strand's eigenvalue), then
-    floor_steps._stabilization_rounds. outputs receive the first p's |c|_inf and KKT distance, the
-    last p's, and the margin it compared with (NaN where the quotient proved it); violations and seconds as
-    confirmed_kernel's (seconds[2] its stability, [0] and [1] the rest's model evaluation and linear algebra)."""
+    its eigenvalue and mode) of whole_solve. The first solve: for a strand held by its root alone
+    (``search``, reaction_start.search_state, without a reaction) solvers.confirmed_start's
+    confirmed_kernel; for one held at more points, c at p0 (f at p0 returned, no dc/dp there), the
+    reaction search (reaction_start.family_optimum, which logs it in ``search``) and confirmed_at
+    there. Then Problem.meets_margin's test (``margin``: the known margin, or NaN: the Rayleigh
+    quotient bound first, then STABILITY_FRACTION of the unstressed strand's eigenvalue), then
+    floor_steps._stabilization_rounds (its searches logged too). outputs receive the first p's |c|_inf
+    and KKT distance, the last p's, and the margin it compared with (NaN where the quotient proved
+    it); violations and seconds as confirmed_kernel's (seconds[2] its stability, [0] and [1] the
+    rest's model evaluation and linear algebra)."""
     empty = np.empty(0)
-    outcome, change, p, f0, values0, f, values, distance, value, mode = confirmed_kernel(
-        forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
-        multiplier, bend, rest, lengths, position, empty, dgbtrf, dgbtrs, near, clock, clock_id, tol, kkt_tol,
-        hessian_args, eigen_args, scale, free_index, seconds, violations)
+    change, basis = search[0], search[1]
+    held = basis.shape[1] > 0
+    if not held:
+        outcome, change, p, f0, values0, f, values, distance, value, mode = confirmed_kernel(
+            forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
+            multiplier, bend, rest, lengths, position, empty, dgbtrf, dgbtrs, near, clock, clock_id, tol, kkt_tol,
+            hessian_args, eigen_args, scale, free_index, seconds, violations)
+        # the rounds' starts: statics optima of that change (family_optimum without a reaction)
+        search = (change, basis, search[2], search[3], search[4], search[5], search[6], search[7], search[8],
+                  search[9])
+    else:
+        buffer = np.zeros(2, dtype=np.int64)
+        start = timing.clock_seconds(clock, clock_id, buffer)
+        c0, f0 = at_rest_residual(p0, forces_args, free, row_scale)
+        violations[0] = largest_magnitude(c0)
+        seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - start
+        found = family_optimum(search, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
+        outcome, p, values0, f, values, distance, value, mode = _DECLINED, found, empty, empty, empty, np.inf, \
+            np.nan, empty
+        if found.size:
+            # the stability is measured: a runtime True (held), as confirmed_kernel's tuple types it
+            stability = (held, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
+            outcome, _, p, _, _, f, values, distance, value, mode = confirmed_at(
+                found, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, position,
+                change, f0, empty, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds, violations)
     if outcome != CONFIRMED or not (violations[1] <= tol and distance <= kkt_tol) or mode.size == 0:
-        return (_DECLINED, 0, empty, empty, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
+        return (_DECLINED, 0, empty, p, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
                 np.nan, empty)
     outputs[0], outputs[1] = violations[1], distance
     if not stabilize:
@@ -144,12 +196,12 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
         return _STABLE, 0, change, p, f0, values0, f, values, value, mode, lower, p, f, values, value, mode
     ending, rounds, floored, last, last_value, last_mode, last_f, last_values, violation, last_distance = \
         _stabilization_rounds(p, value, mode, lower, upper, w, stiffness, margin, overshoot, relevant, steps,
-                              max_rounds, tol, kkt_tol, near, change, p0, rate, multiplier, bend, rest, lengths,
+                              max_rounds, tol, kkt_tol, near, search, p0, rate, multiplier, bend, rest, lengths,
                               forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf,
                               dgbtrs, hessian_args, eigen_args, scale, free_index, stiffening_args, clock,
                               clock_id, seconds)
-    if ending == _NOT_APPLICABLE:
-        return (_DECLINED, 0, empty, empty, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
+    if ending == _NOT_APPLICABLE:  # the first p kept: a held strand's search
+        return (_DECLINED, 0, empty, p, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
                 np.nan, empty)
     outputs[2], outputs[3] = violation, last_distance
     if rounds == 0:
