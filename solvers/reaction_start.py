@@ -81,7 +81,6 @@ SIMPLEX_SIZE = 1e-10
 VALUE_SPREAD = 1e-15
 
 
-
 def compile_kernels() -> None:
     """Compile (or load from numba's cache) the search and the family's many-right-hand-side band
     solve with the argument types of a strand's, on a strand of two edges: only strands held at more
