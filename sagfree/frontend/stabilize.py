@@ -315,9 +315,8 @@ def _landing(floored: Problem, p: np.ndarray) -> np.ndarray:
     onto the floors (c kept, rest_change.restiffen). Both keep c = 0; the optimum trades some of
     the floors' stiffness back for rest change, so it is less stable than the restiffened p, and
     checking it checks the eigenvalue the Result will report, one evaluation fewer per round. For a
-    strand held at more points the floored start (a reaction search, solvers.reaction_start) would
-    be the landing too: it lowered R by 1% and saved 2 of 21 rounds on groom(40, 100) with tips
-    pinned, but took 40% more values of Phi and 25% more time."""
+    strand held at more points the floored start is a reaction search (solvers.reaction_start), which
+    as the landing cost 25% more time than restiffening for 1% less R (benchmarks/RESULTS.md)."""
     if square_rest_system(floored):
         start = linear_start(floored)
         if start is not None and np.abs(floored.residual(start)).max(initial=0.0) <= TOL:

@@ -11,17 +11,17 @@ are the two calls' bit for bit (tests/test_whole_solve.py); the front end then b
 Result (frontend.stabilize).
 
 A strand held at points besides its root (a pinned tip, pins) takes the same call with the reaction
-search (solvers.reaction_start) as its start and as each floored landing and re-solve: its family
-of balancing rest changes is computed before the call (one band LU of its root-held companion,
-memoized with the Problem), and the call's start, floors, solutions and counts of Phi's values are
-the Python path's (solve_alm from the reaction start, then frontend.stabilize.floors_loop with the
-searched landings) bit for bit.
+search (solvers.reaction_start) as its start and each re-solve's, the floors' landings restiffened
+(frontend.floor_steps): its family of balancing rest changes is computed before the call (one band
+LU of its root-held companion, memoized with the Problem), and the call's start, floors, solutions
+and counts of Phi's values are the Python path's (solve_alm from the reaction start, then
+frontend.stabilize.floors_loop) bit for bit.
 
 Where any part leaves that path (the start is not confirmed at once, it is p0 itself, a round's
 re-solve would need asc's outer loop, or the path does not apply at all: confirmed_start's
-conditions) the call says so and nothing of it is kept, but for a held strand's first search (the
-solve that takes over starts from it, as it would have found it): the caller solves the strand the
-usual way, from scratch.
+conditions) the call says so and nothing of it is kept but a held strand's searches (the Python
+path would take the same ones first: it reads them from reaction_start's memo): the caller solves
+the strand the usual way, from scratch.
 """
 from __future__ import annotations
 
@@ -169,7 +169,7 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
         violations[0] = largest_magnitude(c0)
         seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - start
         found = family_optimum(search, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
-        outcome, p, values0, f, values, distance, value, mode = _DECLINED, found, empty, empty, empty, np.inf, \
+        outcome, p, values0, f, values, distance, value, mode = _DECLINED, empty, empty, empty, empty, np.inf, \
             np.nan, empty
         if found.size:
             # the stability is measured: a runtime True (held), as confirmed_kernel's tuple types it
@@ -178,7 +178,7 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
                 found, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, position,
                 change, f0, empty, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds, violations)
     if outcome != CONFIRMED or not (violations[1] <= tol and distance <= kkt_tol) or mode.size == 0:
-        return (_DECLINED, 0, empty, p, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
+        return (_DECLINED, 0, empty, empty, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
                 np.nan, empty)
     outputs[0], outputs[1] = violations[1], distance
     if not stabilize:
@@ -200,8 +200,8 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
                               forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf,
                               dgbtrs, hessian_args, eigen_args, scale, free_index, stiffening_args, clock,
                               clock_id, seconds)
-    if ending == _NOT_APPLICABLE:  # the first p kept: a held strand's search
-        return (_DECLINED, 0, empty, p, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
+    if ending == _NOT_APPLICABLE:
+        return (_DECLINED, 0, empty, empty, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
                 np.nan, empty)
     outputs[2], outputs[3] = violation, last_distance
     if rounds == 0:
