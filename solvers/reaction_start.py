@@ -23,12 +23,15 @@ search runs on F scaled by the strand's total external force over each held row'
 F = 0 (the root carries everything; a floored twin of the stabilization from the last search's F;
 where a box admits no multiplier there, from the first F Nelder-Mead finds on the boxes' violation,
 ``reaction_violation``, whose zeros are where Phi is finite but for statics_optimum's choice of
-rest lengths): BFGS with forward-difference gradients and an Armijo line search (Nocedal & Wright, Numerical
-Optimization, algorithm 6.1). Where a jump in curvature stopped it short (a small step along an
-axis, or a diagonal between two, still lowers Phi), one round of Nelder-Mead (Lagarias et al.,
-SIAM J. Optim. 9, 1998: reflection 1, expansion 2, contraction 1/2, shrink 1/2) on a small simplex
-around its end follows. On groom strands with a pinned tip or a pin (k = 3) that takes ~150 values
-of Phi, where Nelder-Mead alone took ~420. The whole search is one compiled call
+rest lengths): BFGS with exact gradients (statics_start.optimum_gradient: forward differences
+took twice the values) and an Armijo line search (Nocedal & Wright, Numerical Optimization,
+algorithm 6.1). Where Phi descends towards the edge of its domain (tight boxes: the line search
+fails on values of inf), a round of Nelder-Mead (Lagarias et al., SIAM J. Optim. 9, 1998:
+reflection 1, expansion 2, contraction 1/2, shrink 1/2) on a simplex of edge FIRST_STEP moves along
+that edge and BFGS goes on from its best point. Where a jump in curvature stopped BFGS short (a
+small step along an axis, or a diagonal between two, still lowers Phi), one round of Nelder-Mead on
+a small simplex around its end follows. On groom strands with a pinned tip or a pin (k = 3) that
+takes ~85 values of Phi, where Nelder-Mead alone took ~420. The whole search is one compiled call
 (``reaction_values`` counts its values). asc then confirms the point by its KKT distance, as it
 confirms a root-held strand's start, or polishes it (a kink whose descent runs along none of
 those directions leaves the search short). The front end's whole solve (frontend.whole_solve) runs
@@ -59,21 +62,18 @@ from sagfree.linalg.band import column_norms
 from sagfree.linalg.square import square_column_solves
 
 from .gauss_newton import regularizer_value
-from .statics_start import least_multipliers, square_rest_system, statics_indices, statics_optimum
+from .statics_start import least_multipliers, optimum_gradient, square_rest_system, statics_indices, statics_optimum
 
 #: values of Phi per search, all its phases together
 MAX_EVALUATIONS = 4000
-#: the quasi-Newton phase: the forward differences' relative step and its floor (scaled units), the
-#: longest first trial step (scaled units) and the Armijo constant
-DIFFERENCE_STEP = 1.5e-8
-DIFFERENCE_FLOOR = 0.1
+#: the quasi-Newton phase: the longest first trial step (scaled units) and the Armijo constant
 MAX_STEP = 1.0
 ARMIJO = 1e-4
 #: relative change of Phi below which the quasi-Newton phase stops (rounding: gauss_newton's ROUNDING)
 ROUNDING = 1e-13
-#: the simplex edge (scaled units) of the Nelder-Mead round on the boxes' violation where Phi is inf
-#: at F = 0, and of the round that polishes the quasi-Newton phase's end (a kink can stop it short;
-#: also the axis steps that test for that)
+#: the simplex edge (scaled units) of the Nelder-Mead rounds on the boxes' violation where Phi is inf
+#: at F = 0 and along the edge of Phi's domain, and of the round that polishes the quasi-Newton
+#: phase's end (a kink can stop it short; also the axis steps that test for that)
 FIRST_STEP = 0.1
 POLISH_STEP = 1e-5
 #: a round ends when its simplex is within this (scaled units) or its values within VALUE_SPREAD (relative)
@@ -268,24 +268,32 @@ def least_over_reactions(start, change, basis, scale, p0, w, lower, upper, rate,
     docstring), p empty where every value met was inf, and the values of Phi it took (at most
     about MAX_EVALUATIONS). From ``start`` (F = 0 where Phi is inf there), or where Phi is inf at
     F = 0 too from the point where a Nelder-Mead round on V (reaction_violation, a simplex of edge
-    FIRST_STEP) reaches 0: quasi-Newton, then, where it stopped short of a minimum (_improvable), a
-    Nelder-Mead round on a simplex of edge POLISH_STEP around its end."""
+    FIRST_STEP) reaches 0: quasi-Newton (after each stop at the edge of Phi's domain, a Nelder-Mead
+    round of edge FIRST_STEP and quasi-Newton again while that lowers Phi), then, where it stopped
+    short of a minimum (_improvable), a Nelder-Mead round on a simplex of edge POLISH_STEP around
+    its end."""
     work = np.empty(p0.size)
     args = (change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths, work)
     x = start.copy()
-    value, _p = reaction_value(x, *args)
+    value, p = reaction_value(x, *args)
     evaluations = 1
     if not np.isfinite(value) and np.any(x != 0.0):
         x[:] = 0.0
-        value, _p = reaction_value(x, *args)
+        value, p = reaction_value(x, *args)
         evaluations += 1
     if not np.isfinite(value):  # a reaction the boxes admit, first (V = 0)
         violation = reaction_violation(x, *args)
         x, violation, evaluations = _nelder_mead_round(x, violation, FIRST_STEP, evaluations + 1, True, args)
-        value, _p = reaction_value(x, *args)
+        value, p = reaction_value(x, *args)
         evaluations += 1
     if np.isfinite(value):
-        x, value, evaluations = _quasi_newton(x, value, evaluations, args)
+        x, value, evaluations, walled = _quasi_newton(x, value, p, evaluations, args)
+        while walled and evaluations < MAX_EVALUATIONS:  # around the edge of Phi's domain, then on
+            moved, moved_value, evaluations = _nelder_mead_round(x, value, FIRST_STEP, evaluations, False, args)
+            if not moved_value < value:
+                break
+            moved_value, p = reaction_value(moved, *args)
+            x, value, evaluations, walled = _quasi_newton(moved, moved_value, p, evaluations + 1, args)
         improvable, evaluations = _improvable(x, value, evaluations, args)
         if improvable:
             x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, False, args)
@@ -345,44 +353,26 @@ def _nelder_mead_round(x, value, step, evaluations, violation, args):  # pragma:
 
 
 @numba.njit(cache=True)
-def _forward_gradient(x, value, args):  # pragma: no cover - compiled
-    """(gradient, values taken): Phi's gradient at x by forward differences (backward where the
-    forward point is inf), steps sqrt(eps) max(|x_i|, DIFFERENCE_FLOOR); all NaN where both sides
-    of an entry are inf."""
-    k = x.size
-    gradient = np.empty(k)
-    taken = 0
-    for i in range(k):
-        h = DIFFERENCE_STEP * max(abs(x[i]), DIFFERENCE_FLOOR)
-        moved = x.copy()
-        moved[i] += h
-        forward, _p = reaction_value(moved, *args)
-        taken += 1
-        if np.isfinite(forward):
-            gradient[i] = (forward - value) / h
-            continue
-        moved[i] = x[i] - h
-        backward, _p = reaction_value(moved, *args)
-        taken += 1
-        if not np.isfinite(backward):
-            gradient[:] = np.nan
-            return gradient, taken
-        gradient[i] = (value - backward) / h
-    return gradient, taken
+def reaction_gradient(x, p, change, basis, scale, p0, w, lower, upper, rate, multiplier, bend, rest, lengths,
+                      work):  # pragma: no cover - compiled
+    """Phi's gradient at the scaled reactions x, where p = statics_optimum(d0 + N F) (reaction_value's):
+    scale N^T dR/dd (statics_start.optimum_gradient)."""
+    d = change + basis @ (scale * x)
+    return scale * (basis.T @ optimum_gradient(d, p, p0, w, lower, upper, rate, multiplier, bend, rest, lengths))
 
 
 @numba.njit(cache=True)
-def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
-    """BFGS on Phi from x (inverse Hessian scaled by y's/s's ratio after the first step, Nocedal &
-    Wright 6.20), forward-difference gradients, Armijo backtracking that treats inf as no decrease
-    and a first step taken whole doubled while Phi falls (Phi can fall linearly over many units:
-    a strand pulled taut between its holds); ends when a step moves x by at most SIMPLEX_SIZE or
-    lowers Phi by at most ROUNDING of itself, the line search fails, or MAX_EVALUATIONS. Returns
-    (x, value, evaluations)."""
+def _quasi_newton(x, value, p, evaluations, args):  # pragma: no cover - compiled
+    """BFGS on Phi from x (p: statics_optimum there; inverse Hessian scaled by y's/s's ratio after the
+    first step, Nocedal & Wright 6.20), the gradients exact (reaction_gradient), Armijo backtracking
+    that treats inf as no decrease and a step taken whole doubled while Phi falls (Phi can fall
+    linearly over many units: a strand pulled taut between its holds); ends when a step moves x by
+    at most SIMPLEX_SIZE or lowers Phi by at most ROUNDING of itself, the line search fails, or
+    MAX_EVALUATIONS. Returns (x, value, evaluations, walled): walled where the line search failed on
+    values of inf (Phi descends towards the edge of its domain there)."""
     k = x.size
     inverse = np.eye(k)
-    gradient, taken = _forward_gradient(x, value, args)
-    evaluations += taken
+    gradient = reaction_gradient(x, p, *args)
     first = True
     while evaluations < MAX_EVALUATIONS and np.all(np.isfinite(gradient)):
         direction = -(inverse @ gradient)
@@ -394,31 +384,31 @@ def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
                 break
         longest = np.abs(direction).max()
         t = min(1.0, MAX_STEP / longest) if longest > 0.0 else 1.0
-        accepted = backtracked = False
+        accepted = backtracked = walled = False
         while t * longest > SIMPLEX_SIZE and evaluations < MAX_EVALUATIONS:
             trial = x + t * direction
-            trial_value, _p = reaction_value(trial, *args)
+            trial_value, trial_p = reaction_value(trial, *args)
             evaluations += 1
             if trial_value <= value + ARMIJO * t * slope:
                 accepted = True
                 break
+            walled = not np.isfinite(trial_value)
             t *= 0.5
             backtracked = True
         if not accepted:
-            break
-        # a first step taken whole: doubled while that lowers Phi
+            return x, value, evaluations, walled
+        # a step taken whole: doubled while that lowers Phi
         while not backtracked and evaluations < MAX_EVALUATIONS:
             farther = x + 2.0 * t * direction
-            farther_value, _p = reaction_value(farther, *args)
+            farther_value, farther_p = reaction_value(farther, *args)
             evaluations += 1
             if not farther_value < trial_value:
                 break
-            t, trial, trial_value = 2.0 * t, farther, farther_value
+            t, trial, trial_value, trial_p = 2.0 * t, farther, farther_value, farther_p
         if value - trial_value <= ROUNDING * abs(value) or np.abs(trial - x).max() <= SIMPLEX_SIZE:
-            x, value = trial, trial_value  # at Phi's rounding: nothing left for differences to resolve
+            x, value = trial, trial_value  # at Phi's rounding: nothing left to resolve
             break
-        new_gradient, taken = _forward_gradient(trial, trial_value, args)
-        evaluations += taken
+        new_gradient = reaction_gradient(trial, trial_p, *args)
         s, y = trial - x, new_gradient - gradient
         x, value, gradient = trial, trial_value, new_gradient
         sy = s @ y
@@ -429,7 +419,7 @@ def _quasi_newton(x, value, evaluations, args):  # pragma: no cover - compiled
             rho = 1.0 / sy
             hy = inverse @ y
             inverse += (rho * rho * (y @ hy) + rho) * np.outer(s, s) - rho * (np.outer(hy, s) + np.outer(s, hy))
-    return x, value, evaluations
+    return x, value, evaluations, False
 
 
 @numba.njit(cache=True)

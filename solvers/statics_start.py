@@ -61,6 +61,8 @@ NEAR_BOUND = 1e-12
 CERTAIN_EXCESS = 1e-6
 #: runs of elements an infeasibility certificate's message names
 CERTIFICATE_NAMES = 6
+#: share of a box's width within which optimum_gradient takes a value as held by that bound
+ON_BOUND = 1e-9
 
 
 def applies(problem: Problem) -> bool:
@@ -221,6 +223,72 @@ def statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, l
     for k in range(p.size):
         p[k] = min(max(p[k], lower[k]), upper[k])
     return p
+
+
+@numba.njit(cache=True)
+def optimum_gradient(change, p, p0, w, lower, upper, rate, multiplier, bend, rest, lengths):  # pragma: no cover
+    """dR/d change at p = statics_optimum(change, ...) (its arrays): the derivative of the optimum's
+    value, by the envelope theorem. A multiplier inside its box, or held by a bound of its own, stays
+    where it is; one held by a bound that moves with the change follows it:
+
+    - a vertex: at a free multiplier beta, delta_j = z_j s / beta (s its lbar-sum scale), so
+      dR/dz_j = w_j z_j s^2 / beta^2; held at its rest box, beta = needed s with needed = z_* / width_*
+      (the entry that binds) and delta_j = z_j / needed, so dR/dz_j = w_j z_j / needed^2 plus, for
+      z_*, dR/dneeded / width_*; dR/ds is statics_optimum's slope cost either way;
+    - an edge, t = -change at its rest length: a free b = a + t keeps b (du/dt = -1/b, da/dt = -1);
+      a multiplier a on its bound keeps a (du/dt = -a / b^2); a rest length u on its bound keeps u
+      (da/dt = -1/u - 1); u also scales its two vertices' sums.
+
+    The root edge's rest length (free but for its box) stays. Exact between the changes at which a
+    bound starts or stops binding, where R has kinks (central differences agree to ~1e-10 off them,
+    benchmarks/RESULTS.md); at a kink, one side's derivative."""
+    g = np.zeros(change.size)
+    stencils, edges = bend.size, rate.size
+    slope = np.zeros(stencils)
+    for v in range(stencils):
+        ib = bend[v]
+        beta = p[ib]
+        scale = (lengths[v] * (1.0 + p[rate[v]]) + lengths[v + 1] * (1.0 + p[rate[v + 1]])) / (
+            lengths[v] + lengths[v + 1])
+        needed, star, weighted = 0.0, -1, 0.0
+        for j in range(3):
+            i = rest[v, j]
+            z = change[i]
+            weighted += w[i] * z * z
+            if z != 0.0:
+                width = upper[i] - p0[i] if z > 0.0 else lower[i] - p0[i]
+                if width != 0.0 and z / width > needed:
+                    needed, star = z / width, j
+        if star >= 0 and needed * scale >= beta * (1.0 - ON_BOUND) and beta > lower[ib]:  # held at its rest box
+            slope[v] = w[ib] * needed * (needed * scale - p0[ib])
+            by_needed = w[ib] * (needed * scale - p0[ib]) * scale
+            for j in range(3):
+                i = rest[v, j]
+                g[i] += w[i] * change[i] / needed**2
+                by_needed -= w[i] * change[i] ** 2 / needed**3
+            i = rest[v, star]
+            g[i] += by_needed / (upper[i] - p0[i] if change[i] > 0.0 else lower[i] - p0[i])
+        else:
+            slope[v] = weighted * scale / beta**2
+            for j in range(3):
+                i = rest[v, j]
+                g[i] += w[i] * change[i] * scale**2 / beta**2
+    for e in range(1, edges):
+        iu, ia = rate[e], multiplier[e]
+        a, u = p[ia], p[iu]
+        b = a - change[iu]
+        if min(upper[ia] - a, a - lower[ia]) <= ON_BOUND * (upper[ia] - lower[ia]):
+            du, da = -a / b**2, 0.0
+        elif min(upper[iu] - u, u - lower[iu]) <= ON_BOUND * (upper[iu] - lower[iu]):
+            du, da = 0.0, -1.0 / u - 1.0
+        else:
+            du, da = -1.0 / b, -1.0
+        by_t = w[iu] * (u - p0[iu]) * du + w[ia] * (a - p0[ia]) * da
+        for v in (e - 1, e):  # edge e sits in the sums of vertices e - 1 and e
+            if v < stencils:
+                by_t += slope[v] * lengths[e] / (lengths[v] + lengths[v + 1]) * du
+        g[iu] -= by_t  # t = -change
+    return g
 
 
 @numba.njit(cache=True)

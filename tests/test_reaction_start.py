@@ -100,3 +100,32 @@ def test_where_no_multiplier_fits_at_zero_reactions_the_search_starts_where_the_
     assert result.status == from_p0.status == "converged", result.message
     assert result.iterations["outer"] == 0
     assert problem.objective(p) == pytest.approx(from_p0.objective, rel=1e-6)
+
+
+@pytest.mark.parametrize("budget", [2.0, 0.2])
+def test_the_gradient_of_phi_is_its_central_difference(budget):
+    """reaction_gradient (statics_start.optimum_gradient: each element's envelope) against central
+    differences of Phi, at reactions off the search's end and off Phi's kinks (small steps), with
+    the default budgets and with budgets cut to 0.2 rad (many vertices held at their rest box)."""
+    bounds = {"curvature_budget": budget, "twist_budget": budget}
+    checked = 0
+    for held in ({"tip": "pinned"}, {"pins": [20]}, {"tip": "pinned", "pins": [15]}):
+        for strand in sagfree.scenes.groom(3, 40, seed=5):
+            problem = Problem(strand.attached(**held), stabilize=False, bounds=bounds)
+            change, basis, scale = reaction_family(problem)
+            layout = problem.layout
+            args = (change, basis, scale, layout.p0, layout.weights, layout.lower, layout.upper,
+                    *reaction_start.statics_indices(problem), problem.edge_lengths, np.empty(layout.p0.size))
+            end = reaction_start.least_over_reactions(np.zeros(basis.shape[1]), *args[:-1])[1]
+            for offset in np.random.default_rng(1).standard_normal((2, end.size)) * 0.05:
+                x = end + offset
+                value, p = reaction_start.reaction_value(x, *args)
+                if not np.isfinite(value):
+                    continue
+                gradient = reaction_start.reaction_gradient(x, p, *args)
+                central = np.array([(reaction_start.reaction_value(x + h, *args)[0]
+                                     - reaction_start.reaction_value(x - h, *args)[0]) / 2e-7
+                                    for h in np.eye(end.size) * 1e-7])
+                assert gradient == pytest.approx(central, rel=1e-5, abs=1e-6 * np.abs(central).max())
+                checked += 1
+    assert checked >= 12

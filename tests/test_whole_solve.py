@@ -90,18 +90,20 @@ def test_the_whole_solve_leaves_other_strands_to_the_usual_path(monkeypatch):
 
 
 def test_a_declined_held_solve_hands_its_searches_over(monkeypatch):
-    """A held strand whose start the call cannot confirm (a KKT tolerance below what the search
-    reaches): the solve that takes over starts from the call's search, without searching again,
-    and its Result is the usual path's, counts of Phi's values included."""
-    strand = sagfree.scenes.groom(1, 60, seed=0)[0].attached(tip="pinned")
+    """A held strand whose start the call cannot confirm (budgets cut to 0.2 rad: the search ends
+    3e-4 from KKT, at a kink of Phi): the solve that takes over starts from the call's search,
+    without searching again, and its Result is the usual path's, counts of Phi's values included."""
+    strand = sagfree.scenes.groom(3, 40, seed=2)[0].attached(tip="pinned")
+    tight = {"curvature_budget": 0.2, "twist_budget": 0.2}
+    sagfree.solve(Problem(strand, bounds=tight))  # the process's warm-up (its own searches) first
     answers = counted(monkeypatch)
     searches = []
     monkeypatch.setattr(reaction_start, "least_over_reactions", lambda *args: searches.append(1) or
                         least_over_reactions(*args))
-    declined = sagfree.solve(Problem(strand), kkt_tol=1e-10)
+    declined = sagfree.solve(Problem(strand, bounds=tight))
     assert answers == [None]
     taken = len(searches)  # the stabilization's re-solves' searches, after the call's first one
     monkeypatch.setattr(stabilize, "whole_solve", lambda *args, **kwargs: None)
-    usual = sagfree.solve(Problem(strand), kkt_tol=1e-10)
+    usual = sagfree.solve(Problem(strand, bounds=tight))
     assert len(searches) == 2 * taken + 1 and same_results(declined, usual)
     assert declined.iterations["outer"] > 0 and declined.iterations["reaction_values"] > 0
