@@ -1,6 +1,8 @@
 """The input strand: groomed polyline, material, frames, attachments and loads (DESIGN sections 3 and 10)."""
 from __future__ import annotations
 
+import copy
+
 import numba
 import numpy as np
 
@@ -76,6 +78,14 @@ class Strand:
         "free" frees the tip)."""
         return self.replaced(root=root or self.root, tip=self.tip if tip is None else (None if tip == "free" else tip),
                              pins=self.pins if pins is None else pins)
+
+    def root_held(self) -> "Strand":
+        """The same strand held by its root alone (tip free, no pins), sharing this strand's arrays,
+        which are validated already: a solver's companion problem (solvers.reaction_start), which
+        only reads them. ``attached(tip="free", pins=())`` validates the points again."""
+        twin = copy.copy(self)
+        twin.tip, twin.pins = None, np.zeros(0, dtype=int)
+        return twin
 
     def replaced(self, **changes) -> "Strand":
         """The same strand with the given constructor arguments replacing its own (validated again)."""

@@ -59,6 +59,7 @@ import scipy.sparse as sp
 from sagfree.formulation.parameters import BLOCKS, CONTACT_BLOCK, REST_BLOCKS
 from sagfree.formulation.problem import Problem
 from sagfree.linalg.band import column_norms
+from sagfree.linalg.compressed import csc_column_norms
 from sagfree.linalg.square import square_column_solves
 
 from .gauss_newton import regularizer_value
@@ -151,16 +152,18 @@ def reaction_family(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarra
     k), one column per held DOF in the order of the companion's rows), and each F entry's scale,
     the sum of |external force| over the strand in units of its row's scale; None where the
     companion's system is not square or its rest columns that act are not the held strand's."""
-    strand = problem.strand
-    companion = Problem(strand.attached(tip="free", pins=()), **{**problem.options, "stabilize": False})
+    companion = Problem(problem.strand.root_held(), **{**problem.options, "stabilize": False})
     if not square_rest_system(companion):
         return None
     rest = problem.layout.block_mask(REST_BLOCKS)
     J = companion.strand_jacobian(companion.layout.p0)
     acting = rest & (column_norms(J) > 0)
-    if not np.array_equal(acting, rest & (column_norms(problem.strand_jacobian(problem.layout.p0)) > 0)):
+    held = ~problem.free[companion.free_index]
+    held_rows = np.flatnonzero(held)
+    # the held strand's dc/dp at p0 is the companion's without the held rows
+    indptr, indices, data = J.csc()
+    if not np.array_equal(acting, rest & (csc_column_norms(indptr, np.where(held[indices], 0.0, data)) > 0)):
         return None
-    held_rows = np.flatnonzero(~problem.free[companion.free_index])
     rhs = np.zeros((J.shape[0], 1 + held_rows.size))
     rhs[:, 0] = -companion.residual(companion.layout.p0)
     rhs[held_rows, 1 + np.arange(held_rows.size)] = 1.0

@@ -83,3 +83,13 @@ def test_the_compiled_thickness_is_numpys():
                 found = radius_per_edge(points, radius)
                 assert found[0] == edge
                 assert found[1] == radius / lengths[edge] or np.isnan(found[1]) and np.isnan(lengths[edge])
+
+
+def test_root_held_is_attached_without_its_holds_and_shares_the_validated_arrays():
+    strand = sagfree.Strand(np.cumsum(np.full((6, 3), 0.01), axis=0), tip="pinned", pins=[2], loads=np.ones((6, 3)))
+    twin, checked = strand.root_held(), strand.attached(tip="free", pins=())
+    assert twin.tip is None and twin.pins.size == 0 and twin.root == strand.root
+    assert twin.attachments == checked.attachments
+    for name in ("points", "theta", "loads"):
+        assert np.array_equal(getattr(twin, name), getattr(checked, name))
+    assert twin.points is strand.points and strand.tip == "pinned" and strand.pins.tolist() == [2]
