@@ -189,7 +189,7 @@ from .mprgp import PRECONDITIONERS, solve_box_qp
 from .multipliers import least_squares_multipliers
 from .outer_loop import (CRAWL_ROUNDS, MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS,
                          NEWTON_NEAR, NEWTON_STEPS, SQP_DECREASE, feasibility_cost)
-from .confirmed_start import confirmed_start
+from .confirmed_start import confirmed_start, corrected
 from .reaction_start import applies as reaction_applies, reaction_start
 from .statics_start import square_rest_system, statics_start, unbalanceable
 
@@ -348,6 +348,7 @@ def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: floa
     def converged_at(violation, distance):
         return finish("converged", done(violation, distance))
 
+    reaction = None
     if p_start is None:
         p_start = problem.p0
         resolved = _resolved_start(problem, start)
@@ -373,6 +374,12 @@ def _solve_from(problem: Problem, p_start, start: str, tol: float, kkt_tol: floa
         # another start at the optimum, or the confirmed start within c's rounding: confirmed at once
         distance = kkt_optimality(problem, p) if confirmed is None else confirmed.distance
         if distance <= kkt_tol:
+            history.append(violation)
+            return converged_at(violation, distance)
+        # the reaction search's end at a kink of its Phi: a few SQP steps to the KKT point (confirmed_start)
+        fixed = corrected(problem, p, requested, kkt_tol, counts) if reaction is not None else None
+        if fixed is not None:
+            p, violation, distance = fixed
             history.append(violation)
             return converged_at(violation, distance)
     change = problem.remembered("least rest change") if start == "auto" and history else None

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from sagfree.contract.optimality import KKT_TOL, TOL, band_kkt_distance
+from sagfree.contract.optimality import KKT_TOL, TOL, band_kkt_step
 from sagfree.formulation import at_rest
 from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import Problem
@@ -110,6 +110,10 @@ def compiled_start_inputs(problem: Problem, held: bool = False):
     return forces_args, jacobian_args, free, row_scale, structure[0], structure[1], position
 
 
+#: SQP steps a start that balances may take towards the KKT point (``corrected``), and the largest KKT
+#: distance they are tried from (units of p)
+CORRECTIONS = 4
+CORRECTABLE = 1e-2
 #: confirmed_kernel's outcomes: the start and its distance; no optimum (a singular rest system, or a box
 #: that admits no multiplier: the Python path says which); the rest system is not square
 CONFIRMED, _NO_OPTIMUM, _NOT_SQUARE = 2, 1, 0
@@ -173,31 +177,41 @@ def confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indic
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
     return confirmed_at(optimum, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
                         position, change, f0, values0, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds,
-                        violations)
+                        violations, 0, np.zeros(1, dtype=np.int64))
 
 
 @numba.njit(cache=True)
 def confirmed_at(optimum, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, position,
-                 change, f0, values0, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds,
-                 violations):  # pragma: no cover - compiled
+                 change, f0, values0, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds, violations,
+                 corrections, taken):  # pragma: no cover - compiled
     """confirmed_kernel's outcome at a start ``optimum`` (the statics optimum, or the reaction
     search's: solvers.reaction_start): clipped into the box, c and dc/dp there (|c|_inf into
-    violations[1]), the KKT distance and the stability (stability: confirmed_kernel's arguments of
-    the stability evaluation; change, f0, values0: passed through). Also the stabilization's
-    compiled re-solves (frontend.floor_steps.stabilization_rounds)."""
-    buffer = np.zeros(2, dtype=np.int64)
+    violations[1]), the KKT distance, at most ``corrections`` SQP steps where it is not confirmed
+    there (``corrected``; their number added to taken[0]), and the stability (stability:
+    confirmed_kernel's arguments of the stability evaluation; change, f0, values0: passed through).
+    Also the stabilization's compiled re-solves (frontend.floor_steps.stabilization_rounds)."""
     empty = np.empty(0)
     p = np.minimum(np.maximum(optimum, lower), upper)  # solve_alm's np.clip
-    start = timing.clock_seconds(clock, clock_id, buffer)
-    c, f = at_rest_residual(p, forces_args, free, row_scale)
-    violations[1] = largest_magnitude(c)
-    values = at_rest.jacobian_values(p, *jacobian_args)
-    now = timing.clock_seconds(clock, clock_id, buffer)
-    seconds[0] += now - start
-    distance = band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, values, position, w, w * (p - p0), c, p, lower,
-                                 upper, near)
-    seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
     measure, tol, kkt_tol, hessian_args, eigen_args, scale, free_index = stability
+    f, values, distance, step = _evaluated(p, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w,
+                                           lower, upper, position, dgbtrf, dgbtrs, near, clock, clock_id, seconds,
+                                           violations)
+    if corrections and violations[1] <= tol and kkt_tol < distance <= CORRECTABLE and step.size:
+        balanced = violations[1]
+        x, x_violation, x_f, x_values, x_distance = p, violations[1], f, values, distance
+        for _ in range(corrections):
+            x = np.minimum(np.maximum(x + step, lower), upper)
+            taken[0] += 1
+            x_f, x_values, x_distance, step = _evaluated(x, forces_args, jacobian_args, free, row_scale, indptr,
+                                                         indices, p0, w, lower, upper, position, dgbtrf, dgbtrs, near,
+                                                         clock, clock_id, seconds, violations)
+            x_violation = violations[1]
+            if (x_violation <= tol and x_distance <= kkt_tol) or step.size == 0:
+                break
+        if x_violation <= tol and x_distance <= kkt_tol:
+            p, f, values, distance = x, x_f, x_values, x_distance
+        else:  # not reached: the start stays, for asc's outer loop
+            violations[1] = balanced
     eigenvalue, mode = np.nan, empty
     # Problem.stability at q* (its hessian_band's compiled path, which p0 itself does not take)
     if measure and violations[1] <= tol and distance <= kkt_tol and not np.array_equal(p, p0):
@@ -205,3 +219,66 @@ def confirmed_at(optimum, forces_args, jacobian_args, free, row_scale, indptr, i
         eigenvalue, mode = at_rest.stability(p, hessian_args, eigen_args, scale, free_index, clock, clock_id, measured)
         seconds[2] += measured[0] + measured[1]
     return CONFIRMED, change, p, f0, values0, f, values, distance, eigenvalue, mode
+
+
+@numba.njit(cache=True)
+def _evaluated(p, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, position, dgbtrf,
+               dgbtrs, near, clock, clock_id, seconds, violations):  # pragma: no cover - compiled
+    """(f, dc/dp values, KKT distance, its SQP step) at p, |c|_inf into violations[1], seconds[0]
+    and [1] accumulating model evaluation and linear algebra."""
+    buffer = np.zeros(2, dtype=np.int64)
+    start = timing.clock_seconds(clock, clock_id, buffer)
+    c, f = at_rest_residual(p, forces_args, free, row_scale)
+    violations[1] = largest_magnitude(c)
+    values = at_rest.jacobian_values(p, *jacobian_args)
+    now = timing.clock_seconds(clock, clock_id, buffer)
+    seconds[0] += now - start
+    distance, step = band_kkt_step(dgbtrf, dgbtrs, indptr, indices, values, position, w, w * (p - p0), c, p, lower,
+                                   upper, near)
+    seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
+    return f, values, distance, step
+
+
+def corrected(problem: Problem, p: np.ndarray, tol: float, kkt_tol: float, counts: dict,
+              near: float = 1e-6) -> tuple[np.ndarray, float, float] | None:
+    """(p', |c(p')|_inf, its KKT distance) after at most CORRECTIONS SQP steps from a start p that
+    balances (|c|_inf <= tol) but is not confirmed (kkt_tol < KKT distance <= CORRECTABLE), or
+    None where they do not reach a confirmed point (or the saddle system is not a band): each step
+    the KKT distance's own (contract.optimality.kkt_optimality: the equality-constrained step with
+    the regularizer's Hessian on its working set), clipped into the box, counted in counts["sqp"];
+    confirmed_at's steps in Python, the same arithmetic. Why: the reaction search can end at a kink
+    of Phi (a bound starting to bind), a hair from the KKT point on it (1e-4 in p), where asc's outer
+    loop took ~13 outer iterations to get there and two or three such steps do."""
+    layout = problem.layout
+    distance, step = kkt_step(problem, p, near)
+    violation = float(np.abs(problem.residual(p)).max(initial=0.0))
+    if not (violation <= tol and kkt_tol < distance <= CORRECTABLE and step.size):
+        return None
+    x = p
+    for _ in range(CORRECTIONS):
+        x = np.minimum(np.maximum(x + step, layout.lower), layout.upper)
+        counts["sqp"] += 1
+        distance, step = kkt_step(problem, x, near)
+        violation = float(np.abs(problem.residual(x)).max(initial=0.0))
+        if (violation <= tol and distance <= kkt_tol) or step.size == 0:
+            break
+    return (x, violation, distance) if violation <= tol and distance <= kkt_tol else None
+
+
+def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[float, np.ndarray]:
+    """(kkt_optimality(problem, p, near), its SQP step) where the saddle system is a band, else
+    (inf, empty)."""
+    J = problem.strand_jacobian(p)
+    indptr, indices, data = J.csc()
+    position = band_order(indptr, indices, J.shape[0])
+    if position is None:
+        return np.inf, np.empty(0)
+    distance, step = _timed_band_kkt_step(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, position,
+                                          np.asarray(problem.layout.weights, dtype=float),
+                                          problem.objective_gradient(p), problem.residual(p),
+                                          np.asarray(p, dtype=float), problem.layout.lower, problem.layout.upper,
+                                          float(near))
+    return float(distance), step
+
+
+_timed_band_kkt_step = timing.timed(timing.LINEAR_ALGEBRA)(band_kkt_step)

@@ -33,8 +33,9 @@ small step along an axis, or a diagonal between two, still lowers Phi), one roun
 a small simplex around its end follows. On groom strands with a pinned tip or a pin (k = 3) that
 takes ~85 values of Phi, where Nelder-Mead alone took ~420. The whole search is one compiled call
 (``reaction_values`` counts its values). asc then confirms the point by its KKT distance, as it
-confirms a root-held strand's start, or polishes it (a kink whose descent runs along none of
-those directions leaves the search short). The front end's whole solve (frontend.whole_solve) runs
+confirms a root-held strand's start; where the search ended at a kink a hair from the KKT point
+(a bound starting to bind), a few SQP steps reach it (solvers.confirmed_start.corrected), and
+otherwise asc's outer loop polishes it. The front end's whole solve (frontend.whole_solve) runs
 the search, that confirmation and the stabilization's re-solves in one compiled call
 (``family_optimum``, its searches logged in a ``search_state``).
 

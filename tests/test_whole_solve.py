@@ -6,7 +6,7 @@ import pytest
 
 import sagfree
 import sagfree.frontend.stabilize as stabilize
-from sagfree.solvers import reaction_start
+from sagfree.solvers import alm, reaction_start
 from sagfree.solvers.reaction_start import least_over_reactions
 from sagfree.formulation.parameters import STIFFNESS_BLOCKS, STRAND_BLOCK
 from sagfree.formulation.problem import Problem
@@ -90,20 +90,38 @@ def test_the_whole_solve_leaves_other_strands_to_the_usual_path(monkeypatch):
 
 
 def test_a_declined_held_solve_hands_its_searches_over(monkeypatch):
-    """A held strand whose start the call cannot confirm (budgets cut to 0.2 rad: the search ends
-    3e-4 from KKT, at a kink of Phi): the solve that takes over starts from the call's search,
+    """A held strand whose start the call cannot confirm (a tolerance on |c| below c's rounding level
+    on the strand: the call holds the start to the tolerance asked, the usual path raises it to 4x
+    that level, contract.feasibility): the solve that takes over starts from the call's search,
     without searching again, and its Result is the usual path's, counts of Phi's values included."""
-    strand = sagfree.scenes.groom(3, 40, seed=2)[0].attached(tip="pinned")
-    tight = {"curvature_budget": 0.2, "twist_budget": 0.2}
-    sagfree.solve(Problem(strand, bounds=tight))  # the process's warm-up (its own searches) first
+    strand = sagfree.scenes.groom(1, 60, seed=0)[0].attached(tip="pinned")
+    sagfree.solve(Problem(strand))  # the process's warm-up (its own searches) first
     answers = counted(monkeypatch)
     searches = []
     monkeypatch.setattr(reaction_start, "least_over_reactions", lambda *args: searches.append(1) or
                         least_over_reactions(*args))
-    declined = sagfree.solve(Problem(strand, bounds=tight))
+    declined = sagfree.solve(Problem(strand), tol=1e-13)
     assert answers == [None]
     taken = len(searches)  # the stabilization's re-solves' searches, after the call's first one
     monkeypatch.setattr(stabilize, "whole_solve", lambda *args, **kwargs: None)
-    usual = sagfree.solve(Problem(strand, bounds=tight))
+    usual = sagfree.solve(Problem(strand), tol=1e-13)
     assert len(searches) == 2 * taken + 1 and same_results(declined, usual)
-    assert declined.iterations["outer"] > 0 and declined.iterations["reaction_values"] > 0
+    assert "raised" in declined.message and declined.iterations["reaction_values"] > 0
+
+
+def test_a_search_that_ends_at_a_kink_is_corrected_to_the_kkt_point(monkeypatch):
+    """Budgets cut to 0.2 rad: the reaction search ends 3e-4 from KKT at a kink of Phi; a few SQP
+    steps (confirmed_start.corrected) reach the KKT point, in the call as in the Python path, where
+    asc's outer loop took 9 outer iterations to the same R."""
+    strand = sagfree.scenes.groom(3, 40, seed=2)[0].attached(tip="pinned")
+    tight = {"curvature_budget": 0.2, "twist_budget": 0.2}
+    answers = counted(monkeypatch)
+    whole = sagfree.solve(Problem(strand, bounds=tight))
+    assert answers[-1] is not None and whole.status == "converged"
+    assert whole.iterations["outer"] == 0 and whole.iterations["sqp"] > 0
+    monkeypatch.setattr(stabilize, "whole_solve", lambda *args, **kwargs: None)
+    assert same_results(whole, sagfree.solve(Problem(strand, bounds=tight)))
+    monkeypatch.setattr(alm, "corrected", lambda *args, **kwargs: None)
+    polished = sagfree.solve(Problem(strand, bounds=tight))
+    assert polished.status == "converged" and polished.iterations["outer"] > 0
+    assert whole.objective == pytest.approx(polished.objective, rel=1e-9)

@@ -161,6 +161,24 @@ def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w,
     system at a nearby p (linalg.saddle.band_factors' tuple, as SaddleFactor holds them: no
     curvature, the same w), tried first by iterative refinement where its free set is the first
     working set (linalg.saddle.constrained_step); no_band_factors() where there are none."""
+    return nearby_band_kkt_step(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower,
+                                upper, near, nearby)[0]
+
+
+@numba.njit(cache=True)
+def band_kkt_step(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower, upper,
+                  near):  # pragma: no cover - compiled
+    """(distance, d): band_kkt_distance and the SQP step d of its last working set, whose largest
+    entry the distance is unless a bound's multiplier keeps the wrong sign (empty where no working
+    set gave a solvable system)."""
+    return nearby_band_kkt_step(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower,
+                                upper, near, no_band_factors())
+
+
+@numba.njit(cache=True)
+def nearby_band_kkt_step(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower,
+                         upper, near, nearby):  # pragma: no cover - compiled
+    """(distance, d) of nearby_band_kkt_distance (band_kkt_step's)."""
     factors, half, pivots, kept, reduced, nearby_free = nearby
     n = p.size
     scale = gradient_scale_kernel(w, indptr, data)
@@ -190,7 +208,7 @@ def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w,
                 if active[j] and p[j] > lower[j] and p[j] < upper[j]:
                     active[j], loose = False, True
             if not loose:
-                return np.inf
+                return np.inf, np.empty(0)
             continue
         step, solved = d, True
         gradient = regularizer_gradient + csc_rmatvec(indptr, indices, data, lam)
@@ -204,7 +222,7 @@ def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w,
         for j in range(n):
             active[j] &= not wrong[j]
     if not solved:
-        return np.inf
+        return np.inf, np.empty(0)
     largest_step, largest_wrong = 0.0, 0.0
     for j in range(n):  # numpy's max: a NaN is kept from then on
         size = abs(step[j])
@@ -213,7 +231,7 @@ def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w,
         wrong_size = (abs(gradient[j]) if wrong[j] else 0.0) / scale[j]
         if not wrong_size <= largest_wrong:
             largest_wrong = wrong_size if largest_wrong == largest_wrong else largest_wrong
-    return largest_wrong if largest_wrong > largest_step else largest_step  # Python's max(step, wrong)
+    return (largest_wrong if largest_wrong > largest_step else largest_step), step  # Python's max(step, wrong)
 
 
 #: the compiled loop as linear algebra in a Result's time split (its factorization is most of it)

@@ -41,7 +41,7 @@ from sagfree.formulation.problem import Problem
 from sagfree.formulation.rest_change import restiffened_elements
 from sagfree.linalg import lapack, timing
 from sagfree.linalg.pairwise import pairwise_sum
-from sagfree.solvers.confirmed_start import compiled_start_inputs, confirmed_at
+from sagfree.solvers.confirmed_start import CORRECTIONS, compiled_start_inputs, confirmed_at
 from sagfree.solvers.gauss_newton import at_rest_residual
 from sagfree.solvers.reaction_start import family_optimum, search_state
 from sagfree.solvers.statics_start import applies, statics_indices
@@ -195,7 +195,8 @@ def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np
     ending, rounds, lower, p, value, mode, f, values, violation, distance = _stabilization_rounds(
         np.ascontiguousarray(p, dtype=float), float(value), np.ascontiguousarray(mode, dtype=float), layout.lower,
         layout.upper, layout.weights, stiffness, float(margin), float(overshoot), float(relevant), int(steps),
-        int(max_rounds), float(tol), float(kkt_tol), float(near), root_held_search(change), layout.p0,
+        int(max_rounds), float(tol), float(kkt_tol), float(near), root_held_search(change),
+        np.zeros(1, dtype=np.int64), layout.p0,
         *statics_indices(problem),
         problem.edge_lengths, forces_args, jacobian_args, free, row_scale, indptr, indices, position, lapack.DGBTRF,
         lapack.DGBTRS, *stability, stiffening, *timing.CLOCK, seconds)
@@ -211,8 +212,9 @@ def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np
 
 @numba.njit(cache=True)
 def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps,
-                          max_rounds, tol, kkt_tol, near, search, p0, rate, multiplier, bend, rest, lengths,
-                          forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf, dgbtrs,
+                          max_rounds, tol, kkt_tol, near, search, corrections, p0, rate, multiplier, bend, rest,
+                          lengths, forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf,
+                          dgbtrs,
                           hessian_args, eigen_args, scale, free_index, stiffening_args, clock, clock_id,
                           seconds):  # pragma: no cover - compiled
     """(ending, rounds, lower bounds, p, its eigenvalue and mode, f and dc/dp values at p, |c|_inf,
@@ -220,8 +222,9 @@ def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, marg
     floored problem's confirmed start (confirmed_at the floored start, reaction_start.family_optimum
     of ``search``: the round's last landing where it landed under these floors, as the start's memo
     gives it to the Python path's re-solve), its stability the landing's where it is the landing
-    (the memo the Python path reads), else measured. seconds[0] and [1] accumulate model
-    evaluation and linear algebra."""
+    (the memo the Python path reads), else measured; a held strand's start may take SQP steps
+    towards the KKT point (confirmed_start.corrected), counted in corrections[0]. seconds[0] and [1]
+    accumulate model evaluation and linear algebra."""
     empty = np.empty(0)
     timed = seconds[:2]
     # the stability is measured below; a runtime False (empty.size > 0): a literal False would type the
@@ -250,7 +253,8 @@ def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, marg
             return _NOT_APPLICABLE, rounds, lower, p, value, mode, f, values, violation, distance
         _, _, p, _, _, f, values, distance, _, _ = confirmed_at(
             start, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, weights, lower, upper, position,
-            search[0], empty, empty, dgbtrf, dgbtrs, near, clock, clock_id, unmeasured, seconds, violations)
+            search[0], empty, empty, dgbtrf, dgbtrs, near, clock, clock_id, unmeasured, seconds, violations,
+            CORRECTIONS if search[1].shape[1] else 0, corrections)
         violation = violations[1]
         if not (violation <= tol and distance <= kkt_tol):  # asc's outer loop would go on from here
             return _NOT_APPLICABLE, rounds, lower, p, value, mode, f, values, violation, distance

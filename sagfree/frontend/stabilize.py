@@ -143,7 +143,7 @@ def _whole_solve(problem: Problem, options: dict, clock: float) -> Result | None
     if found is None:
         return None
     counts = zero_counts()
-    counts["reaction_values"] = found.reaction_values
+    counts["reaction_values"], counts["sqp"] = found.reaction_values, found.sqp
     message = converged_message(found.first_violation, found.first_distance, tol, kkt_tol, 0, 0)
     history = [found.start_violation, found.first_violation]
     if found.ending == "stable" and not found.rounds:  # solve_alm's Result: its stability is the Result's measurement

@@ -34,7 +34,8 @@ from sagfree.formulation import at_rest
 from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import STABILITY_FRACTION, Problem
 from sagfree.linalg import lapack, timing
-from sagfree.solvers.confirmed_start import CONFIRMED, compiled_start_inputs, confirmed_at, confirmed_kernel
+from sagfree.solvers.confirmed_start import (CONFIRMED, CORRECTIONS, compiled_start_inputs, confirmed_at,
+                                             confirmed_kernel)
 from sagfree.solvers.gauss_newton import at_rest_residual, largest_magnitude
 from sagfree.solvers.reaction_start import family_optimum, held_family, remember_searches, search_state
 from sagfree.solvers.statics_start import statics_indices
@@ -53,7 +54,8 @@ class WholeSolve(NamedTuple):
     (floor_steps.ENDINGS; "stable" without a round where the first solve is stable or the problem
     is not stabilized), the floored lower bounds, and the last solution p with its |c|_inf, KKT
     distance and smallest eigenvalue (the first solve's where no round was taken); the values of
-    the reaction search's Phi it took (0 for a strand held by its root alone)."""
+    the reaction search's Phi it took and the SQP steps towards KKT points from its ends (0 for a
+    strand held by its root alone; confirmed_start.corrected)."""
     first: np.ndarray
     start_violation: float
     first_violation: float
@@ -68,6 +70,7 @@ class WholeSolve(NamedTuple):
     distance: float
     value: float
     reaction_values: int
+    sqp: int
 
 
 def whole_solve(problem: Problem, stiffness: np.ndarray, overshoot: float, relevant: float, steps: int,
@@ -100,13 +103,14 @@ def whole_solve(problem: Problem, stiffness: np.ndarray, overshoot: float, relev
     known = problem.__dict__.get("stability_margin", np.nan) if problem.min_eigenvalue is None else \
         float(problem.min_eigenvalue)
     seconds, violations, outputs = np.zeros(3), np.full(2, np.nan), np.full(5, np.nan)
+    corrections = np.zeros(1, dtype=np.int64)  # the SQP steps of held strands' starts (confirmed_start.corrected)
     (ending, rounds, change, first, f0, values0, first_f, first_values, first_value, first_mode, lower, p, f, values,
      value, mode) = _whole_solve(
         forces_args, jacobian_args, free, row_scale, indptr, indices, layout.block_mask(REST_BLOCKS), layout.p0,
         layout.weights, layout.lower, layout.upper, *statics_indices(problem), problem.edge_lengths, position,
         lapack.DGBTRF, lapack.DGBTRS, float(near), *timing.CLOCK, float(tol), float(kkt_tol), *stability,
         stabilize, float(known), form, problem.dof_masses, stiffness, float(overshoot), float(relevant), int(steps),
-        int(max_rounds), stiffening, search, seconds, violations, outputs)
+        int(max_rounds), stiffening, search, corrections, seconds, violations, outputs)
     # the searches are kept whatever follows: a solve that takes over reads them, and counts their values
     remember_searches(problem, search, counted=ending != _DECLINED)
     if ending == _DECLINED:
@@ -130,14 +134,14 @@ def whole_solve(problem: Problem, stiffness: np.ndarray, overshoot: float, relev
     return WholeSolve(first, float(violations[0]), float(outputs[0]), float(outputs[1]), float(seconds[2]),
                       float(margin), int(rounds), ENDINGS[ending], lower, p, float(outputs[2] if rounds else
                                                                                  outputs[0]),
-                      float(distance), float(value), int(search[4][0]))
+                      float(distance), float(value), int(search[4][0]), int(corrections[0]))
 
 
 @numba.njit(cache=True)
 def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, rest_mask, p0, w, lower, upper, rate,
                  multiplier, bend, rest, lengths, position, dgbtrf, dgbtrs, near, clock, clock_id, tol, kkt_tol,
                  hessian_args, eigen_args, scale, free_index, stabilize, margin, form_args, masses, stiffness,
-                 overshoot, relevant, steps, max_rounds, stiffening_args, search, seconds, violations,
+                 overshoot, relevant, steps, max_rounds, stiffening_args, search, corrections, seconds, violations,
                  outputs):  # pragma: no cover - compiled
     """(ending, rounds, least rest change, first p, f and dc/dp values at p0 and at the first p, the
     first p's eigenvalue and mode, the floored lower bounds, the last p, f and dc/dp values there,
@@ -176,7 +180,8 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
             stability = (held, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
             outcome, _, p, _, _, f, values, distance, value, mode = confirmed_at(
                 found, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, position,
-                change, f0, empty, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds, violations)
+                change, f0, empty, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds, violations,
+                CORRECTIONS, corrections)
     if outcome != CONFIRMED or not (violations[1] <= tol and distance <= kkt_tol) or mode.size == 0:
         return (_DECLINED, 0, empty, empty, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
                 np.nan, empty)
@@ -196,7 +201,8 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
         return _STABLE, 0, change, p, f0, values0, f, values, value, mode, lower, p, f, values, value, mode
     ending, rounds, floored, last, last_value, last_mode, last_f, last_values, violation, last_distance = \
         _stabilization_rounds(p, value, mode, lower, upper, w, stiffness, margin, overshoot, relevant, steps,
-                              max_rounds, tol, kkt_tol, near, search, p0, rate, multiplier, bend, rest, lengths,
+                              max_rounds, tol, kkt_tol, near, search, corrections, p0, rate, multiplier, bend, rest,
+                              lengths,
                               forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf,
                               dgbtrs, hessian_args, eigen_args, scale, free_index, stiffening_args, clock,
                               clock_id, seconds)
