@@ -138,12 +138,9 @@ def confirmed_kernel(forces_args, jacobian_args, free, row_scale, indptr, indice
         return confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
                                  rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
                                  dgbtrs, near, clock, clock_id, stability, seconds, violations)
-    start = timing.clock_seconds(clock, clock_id, buffer)
-    c0, f0 = at_rest_residual(p0, forces_args, free, row_scale)
+    c0, f0, values0 = timed_at_rest(p0, forces_args, jacobian_args, free, row_scale, clock, clock_id, seconds)
     violations[0] = largest_magnitude(c0)
-    values0 = at_rest.jacobian_values(p0, *jacobian_args)
     now = timing.clock_seconds(clock, clock_id, buffer)
-    seconds[0] += now - start
     # statics_start.square_rest_system: the rest columns that act are as many as the free DOFs
     norms = csc_column_norms(indptr, values0)
     columns = np.empty(norms.size, dtype=np.bool_)
@@ -226,17 +223,26 @@ def _evaluated(p, forces_args, jacobian_args, free, row_scale, indptr, indices, 
                dgbtrs, near, clock, clock_id, seconds, violations):  # pragma: no cover - compiled
     """(f, dc/dp values, KKT distance, its SQP step) at p, |c|_inf into violations[1], seconds[0]
     and [1] accumulating model evaluation and linear algebra."""
-    buffer = np.zeros(2, dtype=np.int64)
-    start = timing.clock_seconds(clock, clock_id, buffer)
-    c, f = at_rest_residual(p, forces_args, free, row_scale)
+    c, f, values = timed_at_rest(p, forces_args, jacobian_args, free, row_scale, clock, clock_id, seconds)
     violations[1] = largest_magnitude(c)
-    values = at_rest.jacobian_values(p, *jacobian_args)
+    buffer = np.zeros(2, dtype=np.int64)
     now = timing.clock_seconds(clock, clock_id, buffer)
-    seconds[0] += now - start
     distance, step = band_kkt_step(dgbtrf, dgbtrs, indptr, indices, values, position, w, w * (p - p0), c, p, lower,
                                    upper, near)
     seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - now
     return f, values, distance, step
+
+
+@numba.njit(cache=True)
+def timed_at_rest(p, forces_args, jacobian_args, free, row_scale, clock, clock_id, seconds):  # pragma: no cover
+    """(c, f, dc/dp values) at p (Problem.residual, forces and strand_jacobian's arithmetic), their
+    seconds added to seconds[0] (model evaluation)."""
+    buffer = np.zeros(2, dtype=np.int64)
+    start = timing.clock_seconds(clock, clock_id, buffer)
+    c, f = at_rest_residual(p, forces_args, free, row_scale)
+    values = at_rest.jacobian_values(p, *jacobian_args)
+    seconds[0] += timing.clock_seconds(clock, clock_id, buffer) - start
+    return c, f, values
 
 
 def corrected(problem: Problem, p: np.ndarray, tol: float, kkt_tol: float, counts: dict,
