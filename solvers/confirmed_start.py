@@ -19,7 +19,8 @@ rest system that is not square or singular, a box that admits no multiplier) the
 None and solve_alm takes its Python path. Its kernel (``confirmed_kernel``) is also the first part
 of the front end's whole solve of such a strand, stabilization included (frontend.whole_solve);
 its confirmation at a given start (``confirmed_at``) also confirms the reaction search's start of
-a strand held at more points there.
+a strand held at more points there, where a start that balances but is a hair from the KKT point
+(the search's end at a kink of its objective) takes a few SQP steps to it first (``corrected``).
 """
 from __future__ import annotations
 
