@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from sagfree.contract.optimality import KKT_TOL, TOL, band_kkt_step
+from sagfree.contract.optimality import KKT_TOL, TOL, band_kkt, band_kkt_step
 from sagfree.formulation import at_rest
 from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import Problem
@@ -274,18 +274,6 @@ def corrected(problem: Problem, p: np.ndarray, tol: float, kkt_tol: float, count
 
 def kkt_step(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[float, np.ndarray]:
     """(kkt_optimality(problem, p, near), its SQP step) where the saddle system is a band, else
-    (inf, empty)."""
-    J = problem.strand_jacobian(p)
-    indptr, indices, data = J.csc()
-    position = band_order(indptr, indices, J.shape[0])
-    if position is None:
-        return np.inf, np.empty(0)
-    distance, step = _timed_band_kkt_step(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, position,
-                                          np.asarray(problem.layout.weights, dtype=float),
-                                          problem.objective_gradient(p), problem.residual(p),
-                                          np.asarray(p, dtype=float), problem.layout.lower, problem.layout.upper,
-                                          float(near))
-    return float(distance), step
-
-
-_timed_band_kkt_step = timing.timed(timing.LINEAR_ALGEBRA)(band_kkt_step)
+    (inf, empty) (contract.optimality.band_kkt)."""
+    banded = band_kkt(problem, p, near)
+    return (np.inf, np.empty(0)) if banded is None else banded

@@ -110,12 +110,9 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6, nearby=N
     J = problem.strand_jacobian(p)
     c, regularizer_gradient = problem.residual(p), problem.objective_gradient(p)
     w, lower, upper = problem.layout.weights, problem.layout.lower, problem.layout.upper
-    indptr, indices, data = csc_arrays(J)
-    position = band_order(indptr, indices, J.shape[0]) if nearby is None else None
-    if position is not None:  # the loop below in one compiled call
-        return float(_timed_band_kkt_distance(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, position,
-                                              np.asarray(w, dtype=float), regularizer_gradient, c,
-                                              np.asarray(p, dtype=float), lower, upper, float(near)))
+    banded = band_kkt(problem, p, near) if nearby is None else None
+    if banded is not None:  # the loop below in one compiled call
+        return banded[0]
     at_lower = p - lower <= upper - p
     active = ~working_set(p, lower, upper, near)
     scale = gradient_scale(w, J)
@@ -234,5 +231,21 @@ def nearby_band_kkt_step(dgbtrf, dgbtrs, indptr, indices, data, position, w, reg
     return (largest_wrong if largest_wrong > largest_step else largest_step), step  # Python's max(step, wrong)
 
 
+def band_kkt(problem: Problem, p: np.ndarray, near: float = 1e-6) -> tuple[float, np.ndarray] | None:
+    """(kkt_optimality(problem, p, near), the SQP step of its last working set) in one compiled call
+    (band_kkt_step) where the saddle system is a band, else None."""
+    J = problem.strand_jacobian(p)
+    indptr, indices, data = csc_arrays(J)
+    position = band_order(indptr, indices, J.shape[0])
+    if position is None:
+        return None
+    distance, step = _timed_band_kkt_step(lapack.DGBTRF, lapack.DGBTRS, indptr, indices, data, position,
+                                          np.asarray(problem.layout.weights, dtype=float),
+                                          problem.objective_gradient(p), problem.residual(p),
+                                          np.asarray(p, dtype=float), problem.layout.lower, problem.layout.upper,
+                                          float(near))
+    return float(distance), step
+
+
 #: the compiled loop as linear algebra in a Result's time split (its factorization is most of it)
-_timed_band_kkt_distance = timed(LINEAR_ALGEBRA)(band_kkt_distance)
+_timed_band_kkt_step = timed(LINEAR_ALGEBRA)(band_kkt_step)
