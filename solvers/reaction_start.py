@@ -57,14 +57,15 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from sagfree.formulation.parameters import BLOCKS, CONTACT_BLOCK, REST_BLOCKS
+from sagfree.formulation.parameters import REST_BLOCKS
 from sagfree.formulation.problem import Problem
 from sagfree.linalg.band import column_norms
 from sagfree.linalg.compressed import csc_column_norms
 from sagfree.linalg.square import square_column_solves
 
 from .gauss_newton import regularizer_value
-from .statics_start import least_multipliers, optimum_gradient, square_rest_system, statics_indices, statics_optimum
+from .statics_start import (decomposable, least_multipliers, optimum_gradient, square_rest_system, statics_indices,
+                            statics_optimum)
 
 #: values of Phi per search, all its phases together
 MAX_EVALUATIONS = 4000
@@ -99,11 +100,8 @@ def compile_kernels() -> None:
 
 def applies(problem: Problem) -> bool:
     """True where the module's decomposition can hold (module docstring, last paragraph)."""
-    layout, strand = problem.layout, problem.strand
-    return (layout.stiffness == "element" and layout.couple_twist
-            and set(layout.blocks) == set(BLOCKS) - {"twist_stiffness"} and CONTACT_BLOCK not in layout.blocks
-            and strand.root == "clamped" and strand.tip != "clamped"
-            and (strand.tip == "pinned" or len(strand.pins) > 0))
+    strand = problem.strand
+    return decomposable(problem) and strand.tip != "clamped" and (strand.tip == "pinned" or len(strand.pins) > 0)
 
 
 def reaction_start(problem: Problem, counts: dict | None = None) -> np.ndarray | None:

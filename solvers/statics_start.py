@@ -67,10 +67,17 @@ ON_BOUND = 1e-9
 
 def applies(problem: Problem) -> bool:
     """True where the module's decomposition can hold (module docstring, last sentence)."""
-    layout, strand = problem.layout, problem.strand
+    return decomposable(problem) and problem.strand.tip is None and len(problem.strand.pins) == 0
+
+
+def decomposable(problem: Problem) -> bool:
+    """True where the element-by-element decomposition can hold whatever holds the strand besides its
+    root (``applies``; solvers.reaction_start adds a pinned tip or pins): per-element stiffness with
+    the twist coupled to bend, every block optimized, no bodies, a clamped root."""
+    layout = problem.layout
     return (layout.stiffness == "element" and layout.couple_twist
             and set(layout.blocks) == set(BLOCKS) - {"twist_stiffness"} and CONTACT_BLOCK not in layout.blocks
-            and strand.root == "clamped" and strand.tip is None and len(strand.pins) == 0)
+            and problem.strand.root == "clamped")
 
 
 def statics_start(problem: Problem, change: np.ndarray) -> np.ndarray | None:
