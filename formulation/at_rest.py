@@ -119,7 +119,7 @@ def forces(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinematics, verte
             edge_sum[edge_dofs[s, i]] += by_edge[s, i]
     column = np.empty(vertex_width)
     for s in range(vertices):  # (dk/dy)^T dE/dk
-        _chain_rule(kinematics_jacobian, s, by_kinematics[s], 0, column)
+        _chain_rule(kinematics_jacobian, s, by_kinematics[s], np.int64(0), column)
         for i in range(vertex_width):
             vertex_sum[vertex_dofs[s, i]] += column[i]
     out = np.empty(size)
@@ -198,7 +198,7 @@ def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, r
     by_vertex = np.empty((vertices, vertex_width * vertex_width))
     _call(vertex_hessian, vertices, (vertex_q, reference, vertex_geometry, vertex_physical), by_vertex)
     entries = np.empty(by_edge.size + by_vertex.size)
-    k = _raveled_blocks(by_edge, edge_width, entries, 0)
+    k = _raveled_blocks(by_edge, edge_width, entries, np.int64(0))
     _raveled_blocks(by_vertex, vertex_width, entries, k)
     return scatter_values(target, source, ones, entries, rows * columns).reshape(rows, columns)
 
@@ -357,7 +357,7 @@ def slot_pair_entries(edge_index, edge_coefficient, edge_blocks, vertex_index, v
     (a, b) (index >= 0), the edge stencils' then the vertex stencils' (Problem.constraint_hessian_entries)."""
     count = _linked_pairs(edge_index) + _linked_pairs(vertex_index)
     rows, cols, values = np.empty(count, np.int64), np.empty(count, np.int64), np.empty(count)
-    k = _fill_pairs(edge_index, edge_coefficient, edge_blocks, rows, cols, values, 0)
+    k = _fill_pairs(edge_index, edge_coefficient, edge_blocks, rows, cols, values, np.int64(0))
     _fill_pairs(vertex_index, vertex_coefficient, vertex_blocks, rows, cols, values, k)
     return rows, cols, values
 

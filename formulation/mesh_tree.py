@@ -163,8 +163,9 @@ def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
     (``_closest_components`` on the three corners)."""
     corners = np.empty((3, 3))
     corners[0], corners[1], corners[2] = a, b, c
-    _, qx, qy, qz, feature, edge = _closest_components(p, corners, 0, 1, 2)
-    return np.array([qx, qy, qz]), feature, _edge_direction(corners, 0, 1, 2, edge)
+    first, second, third = np.int64(0), np.int64(1), np.int64(2)
+    _, qx, qy, qz, feature, edge = _closest_components(p, corners, first, second, third)
+    return np.array([qx, qy, qz]), feature, _edge_direction(corners, first, second, third, edge)
 
 
 @numba.njit(cache=True, inline="always")

@@ -383,7 +383,8 @@ def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, g
             for j in range(size):
                 damped[0, j] += mu * metric[j]
             before = timing.clock_seconds(clock, clock_id, buffer)
-            factored = factor_active(damped, no_border, no_corner, everything, factor, no_border, no_corner, 0, 0)
+            factored = factor_active(damped, no_border, no_corner, everything, factor, no_border, no_corner,
+                                     np.int64(0), np.int64(0))
             if factored:
                 plain_solve(factor, g, d)
             seconds[1] += timing.clock_seconds(clock, clock_id, buffer) - before

@@ -136,9 +136,9 @@ def confirmed_kernel(forces_args, jacobian_args, free, row_scale, indptr, indice
     empty = np.empty(0)
     stability = (known.size == 0, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
     if known.size:
-        return confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
-                                 rate, multiplier, bend, rest, lengths, position, known, empty, empty, dgbtrf,
-                                 dgbtrs, near, clock, clock_id, stability, seconds, violations)
+        return _confirmed_optimum(known, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower,
+                                  upper, rate, multiplier, bend, rest, lengths, position, empty, empty, dgbtrf, dgbtrs,
+                                  near, clock, clock_id, stability, seconds, violations)
     c0, f0, values0 = timed_at_rest(p0, forces_args, jacobian_args, free, row_scale, clock, clock_id, seconds)
     violations[0] = largest_magnitude(c0)
     now = timing.clock_seconds(clock, clock_id, buffer)
@@ -158,24 +158,25 @@ def confirmed_kernel(forces_args, jacobian_args, free, row_scale, indptr, indice
     seconds[1] += now - start
     if change.size == 0 or not np.all(np.isfinite(change)):
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
-    return confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
-                             multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near,
-                             clock, clock_id, stability, seconds, violations)
+    return _confirmed_optimum(change, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower,
+                              upper, rate, multiplier, bend, rest, lengths, position, f0, values0, dgbtrf, dgbtrs, near,
+                              clock, clock_id, stability, seconds, violations)
 
 
-@numba.njit(cache=True)
-def confirmed_optimum(forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
-                      multiplier, bend, rest, lengths, position, change, f0, values0, dgbtrf, dgbtrs, near, clock,
-                      clock_id, stability, seconds, violations):  # pragma: no cover - compiled
+@numba.njit(cache=True, inline="always")
+def _confirmed_optimum(change, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, rate,
+                       multiplier, bend, rest, lengths, position, f0, values0, dgbtrf, dgbtrs, near, clock, clock_id,
+                       stability, seconds, violations):  # pragma: no cover - compiled
     """confirmed_kernel from the least rest change on: the optimum it fixes, then ``confirmed_at``
-    there (f0, values0: passed through)."""
+    there (f0, values0: passed through). Inlined into confirmed_kernel, its one caller: a kernel of
+    its own would optimize and emit confirmed_at's whole call tree once more on a first run."""
     empty = np.empty(0)
     optimum = statics_optimum(change, p0, w, lower, upper, rate, multiplier, bend, rest, lengths)
     if optimum.size == 0:
         return _NO_OPTIMUM, empty, empty, f0, values0, empty, empty, np.inf, np.nan, empty
     return confirmed_at(optimum, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper,
                         position, change, f0, values0, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds,
-                        violations, 0, np.zeros(1, dtype=np.int64))
+                        violations, np.int64(0), np.zeros(1, dtype=np.int64))
 
 
 @numba.njit(cache=True)

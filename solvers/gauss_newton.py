@@ -108,7 +108,7 @@ def curved_hessian(band, rows, columns, values):  # pragma: no cover - compiled
     while tau <= 1.0:
         for j in range(nb):
             shifted[0, j] = curved[0, j] + tau * abs(band[0, j])
-        if factor_active(shifted, no_border, no_corner, free, factor, no_border, no_corner, 0, 0):
+        if factor_active(shifted, no_border, no_corner, free, factor, no_border, no_corner, np.int64(0), np.int64(0)):
             return shifted
         tau = 1e-8 if tau == 0.0 else 10.0 * tau
     return np.empty((0, 0))
@@ -227,7 +227,7 @@ def corrected_trial(band, band_border, corner, at_lower, at_upper, indptr, indic
         rhs[j] = -pulled[j] if free[j] else 0.0
     nb, m = band.shape[1], corner.shape[0]
     cols, lborder, lcorner = np.empty((nb, band.shape[0])), np.empty((m, nb)), np.empty((m, m))
-    if not factor_active(band, band_border, corner, free, cols, lborder, lcorner, 0, 0):
+    if not factor_active(band, band_border, corner, free, cols, lborder, lcorner, np.int64(0), np.int64(0)):
         return np.empty(0)
     correction = np.empty(n)
     solve_factored(cols, lborder, lcorner, rhs, correction)

@@ -115,7 +115,7 @@ def interior_point(band, border, corner, b, lower, upper, x, relative_gap):  # p
         for r in range(m):
             shifted_corner[r, r] = corner[r, r] + _barrier(nb + r, has_l, has_u, sl, su, zl, zu)
         factorizations += 1
-        if not factor_active(shifted, border, shifted_corner, inner, cols, lborder, lcorner, 0, 0):
+        if not factor_active(shifted, border, shifted_corner, inner, cols, lborder, lcorner, np.int64(0), np.int64(0)):
             return iteration, factorizations
         # predictor (sigma = 0), then corrector with the second-order term dS_aff dZ_aff
         for corrector in range(2):

@@ -148,8 +148,8 @@ def box_qp(band, border, corner, b, lower, upper, x0, rtol, atol, max_iterations
         y = start
         used = counts[CG] + counts[EXPANSION] + counts[PROPORTIONING]
         status, pg, tol = _mprgp(scaled_band, scaled_border, scaled_corner, sb, sl, su, y, rtol, atol,
-                                 max(max_iterations - used, 0), precond, gamma, 0, counts[FACTORIZATIONS] + walking,
-                                 counts)
+                                 max(max_iterations - used, 0), precond, gamma, np.int64(0),
+                                 counts[FACTORIZATIONS] + walking, counts)
     if status == 4:  # walking: the interior-point fallback (module docstring)
         z = np.empty_like(y)
         iterations, factorizations = interior_point(scaled_band, scaled_border, scaled_corner, sb, sl, su, z,

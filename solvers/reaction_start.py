@@ -285,20 +285,21 @@ def least_over_reactions(start, change, basis, scale, p0, w, lower, upper, rate,
         evaluations += 1
     if not np.isfinite(value):  # a reaction the boxes admit, first (V = 0)
         violation = reaction_violation(x, *args)
-        x, violation, evaluations = _nelder_mead_round(x, violation, FIRST_STEP, evaluations + 1, True, args)
+        x, violation, evaluations = _nelder_mead_round(x, violation, FIRST_STEP, evaluations + 1, np.bool_(True), args)
         value, p = reaction_value(x, *args)
         evaluations += 1
     if np.isfinite(value):
         x, value, evaluations, walled = _quasi_newton(x, value, p, evaluations, args)
         while walled and evaluations < MAX_EVALUATIONS:  # around the edge of Phi's domain, then on
-            moved, moved_value, evaluations = _nelder_mead_round(x, value, FIRST_STEP, evaluations, False, args)
+            moved, moved_value, evaluations = _nelder_mead_round(x, value, FIRST_STEP, evaluations, np.bool_(False),
+                                                                 args)
             if not moved_value < value:
                 break
             moved_value, p = reaction_value(moved, *args)
             x, value, evaluations, walled = _quasi_newton(moved, moved_value, p, evaluations + 1, args)
         improvable, evaluations = _improvable(x, value, evaluations, args)
         if improvable:
-            x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, False, args)
+            x, value, evaluations = _nelder_mead_round(x, value, POLISH_STEP, evaluations, np.bool_(False), args)
     if not np.isfinite(value):
         return np.empty(0), x, evaluations
     value, p = reaction_value(x, *args)

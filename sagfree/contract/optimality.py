@@ -195,7 +195,7 @@ def nearby_band_kkt_step(dgbtrf, dgbtrs, indptr, indices, data, position, w, reg
             refine = False
             refined, d, lam = refined_band_solution(dgbtrs, factors, half, pivots, kept, reduced, indptr, indices,
                                                      data, w, ~active, regularizer_gradient, c, REFINED_DISTANCE,
-                                                     REFINEMENTS, REFINED)
+                                                     np.int64(REFINEMENTS), REFINED)
         if not refined:
             singular, d, lam = plain_band_step(dgbtrf, dgbtrs, indptr, indices, data, w, ~active, position,
                                                regularizer_gradient, c)

@@ -181,7 +181,7 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
             outcome, _, p, _, _, f, values, distance, value, mode = confirmed_at(
                 found, forces_args, jacobian_args, free, row_scale, indptr, indices, p0, w, lower, upper, position,
                 change, f0, empty, dgbtrf, dgbtrs, near, clock, clock_id, stability, seconds, violations,
-                CORRECTIONS, corrections)
+                np.int64(CORRECTIONS), corrections)
     if outcome != CONFIRMED or not (violations[1] <= tol and distance <= kkt_tol) or mode.size == 0:
         return (_DECLINED, 0, empty, empty, empty, empty, empty, empty, np.nan, empty, lower, empty, empty, empty,
                 np.nan, empty)

@@ -124,7 +124,7 @@ def _eigenpair(band, v0):  # pragma: no cover - compiled
     while True:  # ends: a large shift makes it diagonally dominant
         for j in range(n):
             shifted[0, j] = band[0, j] + shift
-        if factor_active(shifted, no_border, no_corner, free, factor, no_border, no_corner, 0, 0):
+        if factor_active(shifted, no_border, no_corner, free, factor, no_border, no_corner, np.int64(0), np.int64(0)):
             break
         shift = max(10.0 * shift, start)
     theta, vector = _largest_inverse_eigenpair(factor, v0, min(MAX_STEPS, n), TOLERANCE)

@@ -118,7 +118,7 @@ def _factored_normal(indptr, indices, data, rows, d, include, shift):  # pragma:
     factor = np.empty((rows, band.shape[0]))
     no_border, no_corner = np.zeros((0, rows)), np.zeros((0, 0))
     definite = factor_active(band, no_border, no_corner, np.ones(rows, dtype=np.bool_), factor, no_border, no_corner,
-                             0, 0)
+                             np.int64(0), np.int64(0))
     return factor, definite
 
 
