@@ -109,7 +109,8 @@ def load_hair(path, units: str = "cm", keep_invalid: bool = False, **material) -
     for k in range(n_strands):
         rows = slice(offsets[k], offsets[k + 1])
         if thickness is not None:
-            value = float(thickness[rows].astype(float).mean())
+            with np.errstate(invalid="ignore", over="ignore"):  # a corrupt file's NaN: implausible_radius names it
+                value = float(thickness[rows].astype(float).mean())
         else:
             value = default if default > 0 else 2 * MATERIAL["radius"] / scale
         radius = 0.5 * scale * value

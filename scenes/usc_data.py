@@ -57,7 +57,10 @@ def load_data(path, units: str = "m", *, skip_short: bool = False, keep_invalid:
         if pos + 12 * n > len(data):
             raise ValueError(f"{where}: truncated file: {n} vertices need {12 * n} bytes, "
                              f"{len(data) - pos} are left")
-        points = np.frombuffer(data, "<f4", count=3 * n, offset=pos).reshape(n, 3)
+        # in metres, as float64; a corrupted file's signaling NaN would make the cast warn without
+        # naming the file: Strand rejects it with the strand and vertex instead
+        with np.errstate(invalid="ignore"):
+            points = np.frombuffer(data, "<f4", count=3 * n, offset=pos).reshape(n, 3).astype(float) * scale
         pos += 12 * n
         if n < 3:
             if skip_short:
@@ -66,9 +69,9 @@ def load_data(path, units: str = "m", *, skip_short: bool = False, keep_invalid:
                        "load with skip_short=True to drop such strands)")
             if not keep_invalid:
                 raise ValueError(message)
-            strands.append(InvalidStrand(points * scale, message))
+            strands.append(InvalidStrand(points, message))
             continue
-        strands.append(make_strand(points.astype(float) * scale, where, keep_invalid, **material))
+        strands.append(make_strand(points, where, keep_invalid, **material))
     if pos != len(data):
         raise ValueError(f"{path}: {len(data) - pos} bytes of trailing data after strand "
                          f"{n_strands - 1}, the last of the {n_strands} announced")

@@ -189,6 +189,7 @@ def corrupt(data: bytes, operations) -> bytes:
 @settings(**SETTINGS, max_examples=150)
 @given(operations=st.lists(corruption, min_size=1, max_size=3), keep_invalid=st.booleans())
 @example(operations=[("overwrite", 4, HUGE_HAIR_PATCH)], keep_invalid=True)
+@example(operations=[("flip", 254, b"\x00\x80A")], keep_invalid=True)  # a .data point's signaling NaN
 def test_reader_corrupted_file(workdir, valid_files, ext, operations, keep_invalid):
     data = corrupt(valid_files[ext], operations)
     out = check_reader(ext, write_file(workdir, ext, data), keep_invalid)
