@@ -227,9 +227,9 @@ def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, marg
     accumulate model evaluation and linear algebra."""
     empty = np.empty(0)
     timed = seconds[:2]
-    # the stability is measured below; a runtime False (empty.size > 0): a literal False would type the
-    # tuple apart from confirmed_kernel's and compile confirmed_at a second time
-    unmeasured = (empty.size > 0, tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
+    # the stability is measured below; np.bool_: a literal False would type the tuple apart from
+    # confirmed_kernel's and compile confirmed_at a second time (tests/test_kernel_calls.py)
+    unmeasured = (np.bool_(False), tol, kkt_tol, hessian_args, eigen_args, scale, free_index)
     rounds, f, values, violation, distance = 0, empty, empty, np.nan, np.nan
     violations = np.empty(2)  # confirmed_at's |c|_inf at p0 (unused here) and at its p
     while True:
