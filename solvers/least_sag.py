@@ -192,10 +192,8 @@ class StaticSag:
             shifted = band.copy()
             shifted[0] += shift * masses
             factor = band_cholesky(shifted)
-        rows = problem.strand_jacobian(p, state.q, state.frames).tocsc().tocsr()
-        rows.sort_indices()
-        data = rows.data * np.repeat(problem.row_scale[free], np.diff(rows.indptr))
-        scaled = (rows.indptr.astype(np.int64), rows.indices.astype(np.int64), data)
+        indptr, indices, data = problem.strand_jacobian(p, state.q, state.frames).csr()
+        scaled = (indptr, indices, data * np.repeat(problem.row_scale[free], np.diff(indptr)))
         self._linearized = (state, p.copy(), factor, scaled)
         return factor, scaled
 
