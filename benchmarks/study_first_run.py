@@ -74,7 +74,8 @@ def kernel_times(rows: int) -> None:
         inclusive[name] += seconds
         if open_compiles:
             open_compiles[-1][2] += seconds
-    print(f"warm-up, warm paths and forward check compiled in {total:.1f} s, numba's compiles {sum(own.values()):.1f} s")
+    print(f"warm-up, warm paths and forward check compiled in {total:.1f} s, "
+          f"numba's compiles {sum(own.values()):.1f} s")
     print(f"{'own s':>7} {'with callees':>12} {'versions':>8}  kernel")
     for name, seconds in own.most_common(rows):
         print(f"{seconds:7.1f} {inclusive[name]:12.1f} {len(signatures[name]):8d}  {name}")

@@ -99,7 +99,7 @@ class StaticSag:
 
     def __init__(self, problem: Problem, start: Equilibrium):
         self.problem, self.state, self.at, self.newton = problem, start, None, 0
-        self.visited: list[tuple[float, np.ndarray, Equilibrium]] = []  # (S, p, equilibrium) of each one found
+        self.visited: list[tuple[float, np.ndarray, Equilibrium]] = []  # (S, p, equilibrium) of each equilibrium found
         weight = np.sqrt(problem.masses / problem.masses.sum()) / problem.strand.length
         # the residuals' rows: each vertex position's index in q and its weight
         self.positions, self.position_weights = dofs.position_index(problem.n_vertices).ravel(), np.repeat(weight, 3)
@@ -135,7 +135,7 @@ class StaticSag:
     def stable_visits(self):
         """The visited p whose equilibrium has its smallest eigenvalue at least the stability margin,
         least S first. A generator: each stability is measured when its turn comes (the first
-        candidate usually holds, so one or two measurements where measuring every visit took 5% of
+        candidate usually holds, so one or two measurements where measuring every visit took 8% of
         the best effort's time)."""
         problem = self.problem
         for _, p, state in sorted(self.visited, key=lambda visit: visit[0]):
