@@ -288,9 +288,8 @@ def sag_transposed_product(factor, indptr, indices, data, moving, rows, weights,
 
 @numba.njit(cache=True)
 def _product(factor, indptr, indices, data, moving, rows, weights, size, v):  # pragma: no cover - compiled
-    """J v (sag_product): B in compressed rows, K by its Cholesky factor."""
-    solved = np.empty(factor.shape[0])
-    plain_solve(factor, csc_rmatvec(indptr, indices, data, v), solved)  # B v: the rows as csc columns of B^T
+    """J v (sag_product): the moving rows of K^-1 B v (``_tangent_step``), weighted."""
+    solved = _tangent_step(factor, indptr, indices, data, v)
     out = np.zeros(size)
     for i in range(moving.size):
         out[moving[i]] = weights[i] * solved[rows[i]]
@@ -362,8 +361,9 @@ def _cgls(factor, indptr, indices, data, moving, rows, weights, size, columns, d
 
 @numba.njit(cache=True)
 def _tangent_step(factor, indptr, indices, data, dp):  # pragma: no cover - compiled
-    """dq_s = K^-1 B dp on the free DOFs (StaticSag._predicted): B in compressed rows, K by its
-    Cholesky factor (as ``_product``, before the residuals' rows are picked)."""
+    """dq_s = K^-1 B dp on the free DOFs (StaticSag._predicted, and _product's before it picks the
+    residuals' rows): B in compressed rows (B dp: the rows as csc columns of B^T), K by its
+    Cholesky factor."""
     solved = np.empty(factor.shape[0])
     plain_solve(factor, csc_rmatvec(indptr, indices, data, dp), solved)
     return solved

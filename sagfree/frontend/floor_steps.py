@@ -196,10 +196,9 @@ def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np
         np.ascontiguousarray(p, dtype=float), float(value), np.ascontiguousarray(mode, dtype=float), layout.lower,
         layout.upper, layout.weights, stiffness, float(margin), float(overshoot), float(relevant), int(steps),
         int(max_rounds), float(tol), float(kkt_tol), float(near), root_held_search(change),
-        np.zeros(1, dtype=np.int64), layout.p0,
-        *statics_indices(problem),
-        problem.edge_lengths, forces_args, jacobian_args, free, row_scale, indptr, indices, position, lapack.DGBTRF,
-        lapack.DGBTRS, *stability, stiffening, *timing.CLOCK, seconds)
+        np.zeros(1, dtype=np.int64), layout.p0, *statics_indices(problem), problem.edge_lengths, forces_args,
+        jacobian_args, free, row_scale, indptr, indices, position, lapack.DGBTRF, lapack.DGBTRS, *stability,
+        stiffening, *timing.CLOCK, seconds)
     timing.add(timing.MODEL, seconds[0])
     timing.add(timing.LINEAR_ALGEBRA, seconds[1])
     if ending == _NOT_APPLICABLE:
@@ -214,8 +213,7 @@ def stabilization_rounds(problem: Problem, p: np.ndarray, value: float, mode: np
 def _stabilization_rounds(p, value, mode, lower, upper, weights, stiffness, margin, overshoot, relevant, steps,
                           max_rounds, tol, kkt_tol, near, search, corrections, p0, rate, multiplier, bend, rest,
                           lengths, forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf,
-                          dgbtrs,
-                          hessian_args, eigen_args, scale, free_index, stiffening_args, clock, clock_id,
+                          dgbtrs, hessian_args, eigen_args, scale, free_index, stiffening_args, clock, clock_id,
                           seconds):  # pragma: no cover - compiled
     """(ending, rounds, lower bounds, p, its eigenvalue and mode, f and dc/dp values at p, |c|_inf,
     KKT distance) of stabilization_rounds: floors_loop's turns, each round _checked_floors and the

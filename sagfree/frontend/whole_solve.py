@@ -202,8 +202,7 @@ def _whole_solve(forces_args, jacobian_args, free, row_scale, indptr, indices, r
     ending, rounds, floored, last, last_value, last_mode, last_f, last_values, violation, last_distance = \
         _stabilization_rounds(p, value, mode, lower, upper, w, stiffness, margin, overshoot, relevant, steps,
                               max_rounds, tol, kkt_tol, near, search, corrections, p0, rate, multiplier, bend, rest,
-                              lengths,
-                              forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf,
+                              lengths, forces_args, jacobian_args, free, row_scale, indptr, indices, position, dgbtrf,
                               dgbtrs, hessian_args, eigen_args, scale, free_index, stiffening_args, clock,
                               clock_id, seconds)
     if ending == _NOT_APPLICABLE:
