@@ -1,6 +1,7 @@
 """This checkout against the code at another git revision, strand by strand, in one process.
 
     python benchmarks/compare_revisions.py [--before REV] [--strands 200] [--vertices 100] [--rounds 3]
+                                           [--longer 5]
 
 The shared VM this project measures on drifts by tens of percent within minutes, so two whole-batch
 runs cannot resolve a change of a few percent (bench_solver.py's groom table, best of alternating
@@ -13,10 +14,13 @@ and whether both found the same solutions bit for bit (p, status, smallest eigen
 meant to keep the arithmetic must say yes; otherwise the statuses that differ, the stable counts
 and the largest relative difference of R tell whether both reached the same optima. The copy
 compiles its numba kernels on first use (about a minute and a half), outside the timing.
+``--longer F`` stretches every strand F times from its root: at 5 the default boxes cannot balance
+most of them, so the comparison is of the best effort (least residual, least sag) of infeasible strands.
 """
 from __future__ import annotations
 
 import argparse
+import collections
 import sys
 import tempfile
 import time
@@ -31,9 +35,15 @@ from revisions import installed_revision, renamed_copy  # benchmarks/revisions.p
 BEFORE_NAME = "sagfree_before"
 
 
-def compare(before, strands: int, vertices: int, rounds: int) -> None:
+def stretched(code, strands: int, vertices: int, longer: float) -> list:
+    """groom(strands, vertices, seed=0) of ``code``, each strand ``longer`` times as long from its root."""
+    return [code.Strand(s.points[0] + longer * (s.points - s.points[0]), radius=s.radius)
+            for s in code.scenes.groom(strands, vertices, seed=0)]
+
+
+def compare(before, strands: int, vertices: int, rounds: int, longer: float = 1.0) -> None:
     codes = {"before": before, "this checkout": sagfree}
-    grooms = {name: code.scenes.groom(strands, vertices, seed=0) for name, code in codes.items()}
+    grooms = {name: stretched(code, strands, vertices, longer) for name, code in codes.items()}
     for name, code in codes.items():  # compile / load every kernel outside the timing
         code.optimize(grooms[name][:2], jobs=1)
     seconds = {name: np.zeros(strands) for name in codes}
@@ -45,8 +55,11 @@ def compare(before, strands: int, vertices: int, rounds: int) -> None:
                 start = time.process_time()
                 results[name, i] = codes[name].optimize([grooms[name][i]], jobs=1)[0]
                 seconds[name][i] += time.process_time() - start
-    print(f"groom({strands}, {vertices}, seed=0), {rounds} rounds, each strand solved by both codes in turn "
+    stretch = f" {longer:g} times as long" if longer != 1 else ""
+    print(f"groom({strands}, {vertices}, seed=0){stretch}, {rounds} rounds, each strand solved by both codes in turn "
           "(process time, one core)")
+    statuses = collections.Counter(results["this checkout", i].status for i in range(strands))
+    print(f"   statuses now: {dict(statuses)}")
     for name in codes:
         print(f"   {name:14} {1e3 * seconds[name].sum() / (strands * rounds):8.2f} ms per strand")
     total = seconds["this checkout"].sum() / seconds["before"].sum()
@@ -72,6 +85,7 @@ def main() -> None:
     parser.add_argument("--strands", type=int, default=200)
     parser.add_argument("--vertices", type=int, default=100)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--longer", type=float, default=1.0, help="stretch each strand this many times from its root")
     args = parser.parse_args()
     warnings.simplefilter("ignore")  # the same warnings twice (radius above an edge at 2000 vertices)
     with installed_revision(args.before) as site, tempfile.TemporaryDirectory() as copies:
@@ -80,7 +94,7 @@ def main() -> None:
         sys.path.insert(0, str(renamed_copy(site, BEFORE_NAME, Path(copies))))
         before = __import__(BEFORE_NAME)
         print(f"before: {args.before} ({Path(before.__file__).parent}); this checkout: {Path(sagfree.__file__).parent}")
-        compare(before, args.strands, args.vertices, args.rounds)
+        compare(before, args.strands, args.vertices, args.rounds, args.longer)
 
 
 if __name__ == "__main__":

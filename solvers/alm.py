@@ -185,7 +185,8 @@ from . import gauss_newton, outer_loop
 from .gauss_newton import (ARMIJO, CRAWL, CRAWL_DROP, CRAWL_NEAR, CRAWL_WINDOW, CURVATURE_NEAR, DAMPING, INNER_STEPS,
                            MAX_ITERATIONS, MAX_SECONDS, NO_PROGRESS, NONMONOTONE, QP_FAILED, ROUNDING, STALL, TARGET,
                            InnerState)
-from .mprgp import PRECONDITIONERS, solve_box_qp
+from .least_residual import least_residual
+from .mprgp import PRECONDITIONERS, on_previous_bounds, solve_box_qp
 from .multipliers import least_squares_multipliers
 from .outer_loop import (CRAWL_ROUNDS, MIN_TARGET, NEWTON_AFTER, NEWTON_ATTEMPTS, NEWTON_GROWTH, NEWTON_HALVINGS,
                          NEWTON_NEAR, NEWTON_STEPS, SQP_DECREASE, feasibility_cost)
@@ -611,7 +612,7 @@ def _inner_solve_python(problem: Problem, model: _Model, state: InnerState, lam,
         counts["gauss_newton"] += 1
         # warm start: the bounds active in the previous step's QP are active again
         d_lower, d_upper = lower - p, upper - p
-        start_step = _on_previous_bounds(state.at_lower, state.at_upper, d_lower, d_upper)
+        start_step = on_previous_bounds(state.at_lower, state.at_upper, d_lower, d_upper)
         curvature = (problem.constraint_hessian_entries(p, lam + mu * c)  # gauss_newton.curved_hessian
                      if curved and progress[-1][0] <= CURVATURE_NEAR else None)
         for damping in DAMPING:  # escalate only if rounding breaks the factorization
@@ -864,12 +865,6 @@ def _taken(problem: Problem, model: _Model, sqp: tuple, counts: dict, history: l
     return p, c, J, gradient_scale(model.w, J), lam, nearby
 
 
-def _on_previous_bounds(at_lower, at_upper, d_lower, d_upper) -> np.ndarray:
-    """A box QP's warm start: the step onto the bounds the previous step's QP ended on (``at_lower``,
-    ``at_upper``), 0 elsewhere; MPRGP then starts from that active set."""
-    return np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0))
-
-
 def _crawls(progress: list[tuple[float, float]]) -> bool:
     """True if neither |c|_inf nor the scaled projected gradient fell by CRAWL_DROP over the last
     CRAWL_WINDOW Gauss-Newton steps of an inner solve (module docstring, Crawl)."""
@@ -940,93 +935,6 @@ def _least_rest_change(problem: Problem) -> np.ndarray | None:
             return change
     step = constrained_step(J, layout.weights, np.zeros(problem.n_parameters), c, rest)
     return step[0] if step is not None and np.all(np.isfinite(step[0])) else None
-
-
-#: weight of R against 1/2 |c|^2 in the best-effort phase: a tie-break among least-residual points
-LEAST_RESIDUAL_TIEBREAK = 1e-8
-#: relative decrease of the least-residual objective a run must still be able to reach to go on
-LEAST_RESIDUAL_GAIN = 1e-4
-#: loosest relative tolerance of the least-residual steps' box QPs (least_residual)
-LEAST_RESIDUAL_QP_RTOL = 1e-6
-
-
-def least_residual(problem: Problem, starts: list[np.ndarray], counts: dict, qp_rtol: float = 1e-10,
-                   max_steps: int = 100) -> np.ndarray:
-    """The best effort for a strand the box cannot balance: minimize 1/2 |c(p)|^2 + eps R(p) inside
-    the box (eps = LEAST_RESIDUAL_TIEBREAK) by projected Levenberg-Marquardt from each of ``starts``
-    (the point where the augmented Lagrangian stalled and its start: the problem is nonconvex, and
-    either can be the better basin), keeping the lowest. Each step is a box QP on diag(eps w +
-    damping) + J^T J solved by MPRGP with the active-set Cholesky, warm-started with the previous
-    step's active bounds (as the Gauss-Newton QPs: without it each QP started from the free face and
-    walked the active set back, 2.5x the factorizations), then an Armijo line search. A run stops
-    when its remaining steps, at the rate of its last one, could not bring its objective below
-    (1 - LEAST_RESIDUAL_GAIN) of itself nor, for the second run, below the first run's: on long
-    strands the stall point's run reached its value in a step or two and the run from p0 crawled
-    towards a worse one, each for all of its 100 steps. |c| is the force on each free DOF over its
-    weight, so this is the weighted least-squares force of the predecessor's objective f^T M^-1 f
-    with the weights of c. Its steps are counted as ``least_residual``. Their QPs stop at a relative
-    projected gradient of max(qp_rtol, LEAST_RESIDUAL_QP_RTOL): a Levenberg-Marquardt step needs a
-    descent direction, not the QP's optimum, and the point is only the least sag's start (or the
-    augmented Lagrangian's restart, whose own QPs are tight): tight QPs multiplied the phase's
-    factorizations several times over for the same sag (benchmarks/RESULTS.md).
-    """
-    qp_rtol = max(qp_rtol, LEAST_RESIDUAL_QP_RTOL)
-    best, lowest = None, np.inf
-    for start in starts:
-        p, value = _least_residual_run(problem, np.clip(start, problem.layout.lower, problem.layout.upper), counts,
-                                       qp_rtol, max_steps, lowest)
-        if best is None or value < lowest:
-            best, lowest = p, value
-    return best
-
-
-def _least_residual_run(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: float, max_steps: int,
-                        beat: float = np.inf):
-    """(p, objective) after projected Levenberg-Marquardt on 1/2 |c|^2 + eps R from p (least_residual),
-    stopped where it cannot gain LEAST_RESIDUAL_GAIN of itself or reach ``beat`` at its rate."""
-    lower, upper = problem.layout.lower, problem.layout.upper
-    w, p0 = problem.layout.weights, problem.layout.p0
-    border = 1 if STRAND_BLOCK in problem.blocks else 0
-    eps = LEAST_RESIDUAL_TIEBREAK
-
-    def objective(x, c):
-        return 0.5 * float(c @ c) + eps * problem.objective(x)
-
-    c = problem.residual(p)
-    value = objective(p, c)
-    at_lower, at_upper = p <= lower, p >= upper
-    for step in range(max_steps):
-        J = problem.strand_jacobian(p)
-        gradient = J.T @ c + eps * w * (p - p0)
-        hessian = gram(J, eps * w + 1e-12 + 1e-11 * column_norms(J), 1.0, border)
-        d_lower, d_upper = lower - p, upper - p
-        qp = solve_box_qp(hessian, -gradient, d_lower, d_upper, rtol=qp_rtol,
-                          x0=_on_previous_bounds(at_lower, at_upper, d_lower, d_upper))
-        at_lower, at_upper = qp.x <= d_lower, qp.x >= d_upper
-        counts["least_residual"] += 1
-        for key in ("cg", "expansion", "proportioning", "active_set", "interior", "factorizations",
-                    "factored_rows"):
-            counts[key] += getattr(qp, key)
-        slope = float(gradient @ qp.x)
-        if qp.status not in ("converged", "max_iterations") or not slope < 0:
-            break
-        alpha = 1.0
-        for _ in range(40):
-            counts["line_search"] += 1
-            trial = np.clip(p + alpha * qp.x, lower, upper)
-            c_trial = problem.residual(trial)
-            trial_value = objective(trial, c_trial)
-            if trial_value <= value + ARMIJO * alpha * slope:
-                break
-            alpha *= 0.5
-        else:
-            break
-        decrease = value - trial_value
-        p, c, value = trial, c_trial, trial_value
-        reachable = value - (max_steps - step - 1) * decrease  # at this step's rate
-        if decrease <= 1e-12 * value or reachable > min(beat, (1.0 - LEAST_RESIDUAL_GAIN) * value):
-            break
-    return p, value
 
 
 def _infeasibility(problem: Problem, p, c, J, lower, upper) -> str | None:

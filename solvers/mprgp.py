@@ -121,6 +121,12 @@ def solve_box_qp(hessian: BorderedBand, b: np.ndarray, lower: np.ndarray, upper:
                     int(counts[FACTORED_ROWS]), int(counts[ACTIVE_SET]), int(counts[INTERIOR]))
 
 
+def on_previous_bounds(at_lower, at_upper, d_lower, d_upper) -> np.ndarray:
+    """A box QP's warm start: the step onto the bounds the previous step's QP ended on (``at_lower``,
+    ``at_upper``), 0 elsewhere; MPRGP then starts from that active set."""
+    return np.where(at_lower, d_lower, np.where(at_upper, d_upper, 0.0))
+
+
 @numba.njit(cache=True)
 def box_qp(band, border, corner, b, lower, upper, x0, rtol, atol, max_iterations, precond, gamma,
            active_set_steps, walking, counts):  # pragma: no cover - compiled

@@ -37,6 +37,8 @@ from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
 from sagfree.linalg import cholesky
 from sagfree.solvers import interior_point, least_sag, reaction_start
+from sagfree.solvers.alm import zero_counts
+from sagfree.solvers.least_residual import least_residual
 from sagfree.solvers.statics_start import unbalanceable
 
 from .priming import primed_in_child
@@ -214,11 +216,13 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     infeasibility certificate checked (solvers.statics_start: only strands that fail their start
     reach it), a stabilization round taken from its optimum (the warm-up strand is stable, and
     the round's kernels, floor_steps, otherwise compile or load in the first stabilized strand of
-    each worker of a batch) and one Newton step of its static solve (formulation.newton: the best
-    effort of an infeasible strand settles it, and would load it inside the first one's time)."""
+    each worker of a batch), one Newton step of its static solve and one step of the least
+    residual (formulation.newton, solvers.least_residual: the best effort of an infeasible strand
+    runs both, and would load them inside the first one's time)."""
     problem = _solved_along(entry, solver_options, problem_options, ({}, *(entry.warm_paths if paths else ())))
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
     equilibrium(problem, problem.p0, max_steps=1)
+    least_residual(problem, [problem.p0], zero_counts(), max_steps=1)
     change = problem.remembered("least rest change")
     if change is not None:  # the infeasibility certificate's kernels (a feasible strand's solve skips it)
         unbalanceable(problem, change)
