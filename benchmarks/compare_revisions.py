@@ -77,6 +77,13 @@ def compare(before, strands: int, vertices: int, rounds: int, longer: float = 1.
         relative = max(abs(b.objective - a.objective) / max(abs(a.objective), 1e-300) for a, b in pairs)
         print(f"   statuses differ on {statuses} strands; stable {stable[0]} before, {stable[1]} now; largest "
               f"relative difference of R {relative:.2e}")
+        sags = np.array([(a.static_sag, b.static_sag) for a, b in pairs
+                         if np.isfinite(a.static_sag) and np.isfinite(b.static_sag)])
+        if sags.size:  # strands that rest elsewhere (infeasible): the best effort's sag, now over before
+            ratio = sags[:, 1] / sags[:, 0]
+            print(f"   static sag now / before on {len(ratio)} strands: median {np.median(ratio):.3f}, geometric "
+                  f"mean {np.exp(np.mean(np.log(ratio))):.3f}, {np.sum(ratio > 1.05)} above 1.05, "
+                  f"{np.sum(ratio < 0.95)} below 0.95; sum {sags[:, 0].sum():.3f} -> {sags[:, 1].sum():.3f} L")
 
 
 def main() -> None:

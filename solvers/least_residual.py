@@ -7,10 +7,15 @@ the predecessor's objective f^T M^-1 f with the weights of c; eps R breaks the t
 least-residual points. The method is projected Levenberg-Marquardt from each of the caller's
 starts (the point where the augmented Lagrangian stalled and its start: the problem is nonconvex,
 and either can be the better basin), keeping the lowest. Each step is a box QP on
-diag(eps w + damping) + J^T J solved by MPRGP with the active-set Cholesky (mprgp.box_qp),
-warm-started with the previous step's active bounds (without it each QP started from the free face
-and walked the active set back, 2.5x the factorizations), then an Armijo line search on the
-objective. A run stops when its remaining steps, at the rate of its last one, could not bring its
+diag(eps w + 1e-12 + lambda diag(J^T J)) + J^T J solved by MPRGP with the active-set Cholesky
+(mprgp.box_qp), warm-started with the previous step's active bounds (without it each QP started from
+the free face and walked the active set back, 2.5x the factorizations), then an Armijo line search
+on the objective. Marquardt's lambda adapts as a trust region's radius would (``_next_damping``):
+divided by alpha after a step the line search cut to alpha, so the next step is about as long as
+the last one that held, and by DAMPING_FALL after a full step, down to MIN_DAMPING. With lambda
+fixed at its floor, the long strands' steps were cut 5-8 times each and their QPs walked through
+many active sets that the cut step never reached: the adaptive lambda took 14% less time on 60
+strands of 100 vertices at 5x their length, with the same static sags (benchmarks/RESULTS.md). A run stops when its remaining steps, at the rate of its last one, could not bring its
 objective below (1 - LEAST_RESIDUAL_GAIN) of itself nor, for the second run, below the first run's:
 on long strands the stall point's run reached its value in a step or two and the run from p0
 crawled towards a worse one, each for all of its 100 steps. The QPs stop at a relative projected
@@ -47,6 +52,10 @@ LEAST_RESIDUAL_TIEBREAK = 1e-8
 LEAST_RESIDUAL_GAIN = 1e-4
 #: loosest relative tolerance of the steps' box QPs
 LEAST_RESIDUAL_QP_RTOL = 1e-6
+#: Marquardt's damping of the steps (relative to J^T J's diagonal): its floor, and its fall after a
+#: full step (``_next_damping``)
+MIN_DAMPING = 1e-11
+DAMPING_FALL = 4.0
 #: halvings of a step's line search before the run ends
 HALVINGS = 40
 #: solve counters a run advances (solve_alm's counts), in the order of the compiled loop's counts array
@@ -108,10 +117,11 @@ def _run_python(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: float, m
     c = problem.residual(p)
     value = objective(p, c)
     at_lower, at_upper = p <= lower, p >= upper
+    damping = MIN_DAMPING
     for step in range(max_steps):
         J = problem.strand_jacobian(p)
         gradient = J.T @ c + eps * w * (p - p0)
-        hessian = gram(J, eps * w + 1e-12 + 1e-11 * column_norms(J), 1.0, border)
+        hessian = gram(J, eps * w + 1e-12 + damping * column_norms(J), 1.0, border)
         d_lower, d_upper = lower - p, upper - p
         qp = solve_box_qp(hessian, -gradient, d_lower, d_upper, rtol=qp_rtol,
                           x0=on_previous_bounds(at_lower, at_upper, d_lower, d_upper))
@@ -133,11 +143,19 @@ def _run_python(problem: Problem, p: np.ndarray, counts: dict, qp_rtol: float, m
             alpha *= 0.5
         else:
             break
+        damping = _next_damping(damping, alpha)
         decrease = value - trial_value
         p, c, value = trial, c_trial, trial_value
         if _ends(value, decrease, max_steps - step - 1, beat):
             break
     return p, value
+
+
+@numba.njit(cache=True)
+def _next_damping(damping, alpha):  # pragma: no cover - compiled
+    """The next step's damping after one the line search cut to ``alpha``: / DAMPING_FALL (down to
+    MIN_DAMPING) after a full step, / alpha after a cut one."""
+    return max(damping / DAMPING_FALL, MIN_DAMPING) if alpha == 1.0 else damping / alpha
 
 
 @numba.njit(cache=True)
@@ -175,6 +193,7 @@ def least_residual_loop(forces_args, jacobian_args, free, row_scale, structure, 
     at_lower, at_upper = np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_)
     for j in range(n):
         at_lower[j], at_upper[j] = p[j] <= lower[j], p[j] >= upper[j]
+    damping = MIN_DAMPING
     for step in range(max_steps):
         started = timing.clock_seconds(clock, clock_id, buffer)
         pulled = csc_rmatvec(csc_indptr, csc_indices, values, c)
@@ -184,7 +203,7 @@ def least_residual_loop(forces_args, jacobian_args, free, row_scale, structure, 
         for j in range(n):
             gradient[j] = pulled[j] + LEAST_RESIDUAL_TIEBREAK * w[j] * (p[j] - p0[j])
             negative[j] = -gradient[j]
-            diagonal[j] = LEAST_RESIDUAL_TIEBREAK * w[j] + 1e-12 + 1e-11 * norms[j]
+            diagonal[j] = LEAST_RESIDUAL_TIEBREAK * w[j] + 1e-12 + damping * norms[j]
             d_lower[j], d_upper[j] = lower[j] - p[j], upper[j] - p[j]
             start_step[j] = d_lower[j] if at_lower[j] else (d_upper[j] if at_upper[j] else 0.0)
         band, band_border, corner = gram_arrays(csr_indptr, csr_indices, values[csr_order], diagonal, 1.0, border)
@@ -217,6 +236,7 @@ def least_residual_loop(forces_args, jacobian_args, free, row_scale, structure, 
             alpha *= 0.5
         if not accepted:
             break
+        damping = _next_damping(damping, alpha)
         decrease = value - trial_value
         p, c, f, value = trial, c_trial, f_trial, trial_value
         started = timing.clock_seconds(clock, clock_id, buffer)
