@@ -92,6 +92,7 @@ class NewtonSolve:
     indefinite: int = 0     # factorizations that failed: K not positive definite (mu raised)
     converged: bool = False
     message: str = ""
+    substeps: int = 1       # a time step's sub-steps (simulate: more than one where a whole step failed)
 
 
 @dataclass
@@ -432,34 +433,30 @@ def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: f
 
     damping: mass-proportional damping rate c, 1/s (0: none). root_motion: translation (m, 3-vector)
     of the root vertices at time t (s); None keeps the root where q* has it (a held tip and pins stay). start: the
-    state at t = 0 (4n-1; at rest; None: q*), e.g. a pushed q*. The run stops early if a state
-    becomes non-finite; ``converged`` tells whether every step's Newton converged.
+    state at t = 0 (4n-1; at rest; None: q*), e.g. a pushed q*. A step whose Newton solve does not
+    converge is taken again as two half steps, each split again where it fails, down to
+    dt / 2^SUBSTEP_HALVINGS (``_advanced``): a strand released far from equilibrium (a least-sag
+    answer that snaps into its rest, 0.25 L in 10 ms) moves farther in one step than Newton reaches
+    from the inertial target, and the run diverged at its second step where sub-steps follow the
+    motion. The run stops at a step that fails even so, or whose state is not finite; ``converged``
+    tells whether every step's Newton converged.
     """
     if steps < 0 or not dt > 0 or not damping >= 0:
         raise ValueError(f"need steps >= 0, dt > 0 and damping >= 0; got {steps}, {dt}, {damping}")
     clock = time.perf_counter()
     p = problem.check_parameters(p)
-    weight = generalized_masses(problem) * (1.0 / dt**2 + damping / dt)
-    scales = newton_scales(problem, p)
     n = problem.n_vertices
-    root = dofs.position_index(n)[:2 if problem.strand.root == "clamped" else 1].ravel()
+    stepper = _Stepper(problem, p, damping, root_motion, newton_scales(problem, p), tol, max_newton)
     q = problem.q_star.copy() if start is None else np.asarray(start, dtype=float).copy()
     if q.shape != problem.q_star.shape:
         raise ValueError(f"start must have {problem.q_star.size} entries (4n-1), got {q.size}")
     v, frames = np.zeros_like(problem.q_star), problem.frames
     states, solves = [q], []
     for step in range(1, steps + 1):
-        target = q + dt * v / (1.0 + damping * dt)
-        if root_motion is not None:
-            target[root] = problem.q_star[root] + np.tile(np.asarray(root_motion(step * dt), float), len(root) // 3)
-        potential = IncrementalPotential(problem, p, frames, (weight, target), scales,
-                                         _friction(problem, p, q, dt, step == 1))
-        q_next, record = newton_solve(potential, target, tol, max_newton)
+        q_next, v, frames, record = _advanced(stepper, q, v, frames, step * dt, dt, step == 1, SUBSTEP_HALVINGS)
         solves.append(record)
-        if not np.all(np.isfinite(q_next)):
+        if not record.converged or not np.all(np.isfinite(q_next)):
             break
-        frames = transport_frames(potential.frames, dofs.positions(q_next))
-        v = (q_next - q) / dt
         q = q_next
         states.append(q)
     states = np.array(states)
@@ -468,6 +465,70 @@ def simulate(problem: Problem, p, steps: int = 200, dt: float = 1e-3, damping: f
     sag = float(displacement.max())
     return Simulation(positions, states[:, dofs.theta_index(n)], dt * np.arange(len(states)), displacement,
                       sag, sag / problem.strand.length, solves, dt, time.perf_counter() - clock)
+
+
+#: Halvings of a time step whose Newton solve fails (``simulate``): sub-steps down to dt / 32.
+SUBSTEP_HALVINGS = 5
+
+
+@dataclass
+class _Stepper:
+    """What every time step of one ``simulate`` run shares."""
+
+    problem: Problem
+    p: np.ndarray
+    damping: float
+    root_motion: Callable[[float], np.ndarray] | None
+    scales: tuple
+    tol: float
+    max_newton: int
+
+    def __post_init__(self):
+        self.masses = generalized_masses(self.problem)
+        self.root = dofs.position_index(self.problem.n_vertices)[:2 if self.problem.strand.root == "clamped"
+                                                                 else 1].ravel()
+
+    def step(self, q, v, frames: Frames, end: float, dt: float, first: bool):
+        """(q, frames Newton ended with, record) of one implicit-Euler step of dt from (q, v) to time ``end``."""
+        problem, damping = self.problem, self.damping
+        weight = self.masses * (1.0 / dt**2 + damping / dt)
+        target = q + dt * v / (1.0 + damping * dt)
+        if self.root_motion is not None:
+            target[self.root] = problem.q_star[self.root] + np.tile(np.asarray(self.root_motion(end), float),
+                                                                    len(self.root) // 3)
+        potential = IncrementalPotential(problem, self.p, frames, (weight, target), self.scales,
+                                         _friction(problem, self.p, q, dt, first))
+        q_next, record = newton_solve(potential, target, self.tol, self.max_newton)
+        return q_next, potential.frames, record
+
+
+def _advanced(stepper: _Stepper, q, v, frames: Frames, end: float, dt: float, first: bool, halvings: int):
+    """(q, v, frames, record) after dt from (q, v, frames), ending at time ``end``: one step, or where
+    its Newton solve fails and ``halvings`` remain, two half steps (each split again where it fails;
+    the record then sums their Newton steps and counts the sub-steps). Where even the sub-steps fail,
+    the failed whole step's state and record."""
+    q_next, used, record = stepper.step(q, v, frames, end, dt, first)
+    if record.converged or halvings == 0:
+        return q_next, (q_next - q) / dt, _transported(used, q_next), record
+    q_half, v_half, frames_half, first_half = _advanced(stepper, q, v, frames, end - 0.5 * dt, 0.5 * dt, first,
+                                                        halvings - 1)
+    if first_half.converged and np.all(np.isfinite(q_half)):
+        q_end, v_end, frames_end, second_half = _advanced(stepper, q_half, v_half, frames_half, end, 0.5 * dt, False,
+                                                          halvings - 1)
+        if second_half.converged:
+            merged = NewtonSolve(first_half.residuals + second_half.residuals,
+                                 record.steps + first_half.steps + second_half.steps,
+                                 record.line_search + first_half.line_search + second_half.line_search,
+                                 record.rejected + first_half.rejected + second_half.rejected,
+                                 record.indefinite + first_half.indefinite + second_half.indefinite, True,
+                                 second_half.message, first_half.substeps + second_half.substeps)
+            return q_end, v_end, frames_end, merged
+    return q_next, (q_next - q) / dt, _transported(used, q_next), record
+
+
+def _transported(frames: Frames, q: np.ndarray) -> Frames:
+    """The frames carried to q's tangents (as they were where q is not finite: the run stops there)."""
+    return transport_frames(frames, dofs.positions(q)) if np.all(np.isfinite(q)) else frames
 
 
 @dataclass

@@ -218,3 +218,19 @@ def test_generalized_masses_sum_to_the_strand_mass():
     total = strand.density * np.pi * strand.radius**2 * strand.length
     assert mass[dofs.position_index(20)[:, 0]].sum() == pytest.approx(total)
     assert np.all(mass > 0)
+
+
+def test_a_time_step_newton_cannot_finish_is_taken_in_sub_steps(monkeypatch):
+    """With too few Newton steps for a whole step of the falling strand, the step is split (here into
+    up to 4) and the run follows the fall: where a run with 8x finer steps and ample Newton steps
+    ends. Without sub-steps the same run stops at the step that fails."""
+    problem = sagfree.Problem(sagfree.scenes.horizontal())
+    run = S.simulate(problem, problem.p0, steps=50, dt=2e-3, max_newton=3)
+    assert run.converged and len(run.times) == 51
+    assert max(solve.substeps for solve in run.newton) > 1
+    fine = S.simulate(problem, problem.p0, steps=400, dt=2.5e-4)
+    assert run.displacement[-1] == pytest.approx(fine.displacement[-1], rel=0.01)
+    monkeypatch.setattr(S, "SUBSTEP_HALVINGS", 0)
+    whole = S.simulate(problem, problem.p0, steps=50, dt=2e-3, max_newton=3)
+    assert not whole.converged and len(whole.times) == len(whole.newton) < 51
+    assert not whole.newton[-1].converged
