@@ -4,25 +4,26 @@
 
 |c| is the force on each free DOF over its weight, so this is the weighted least-squares force of
 the predecessor's objective f^T M^-1 f with the weights of c; eps R breaks the ties among
-least-residual points. The method is projected Levenberg-Marquardt from each of the caller's
-starts (the point where the augmented Lagrangian stalled and its start: the problem is nonconvex,
-and either can be the better basin), keeping the lowest. Each step is a box QP on
-diag(eps w + 1e-12 + lambda diag(J^T J)) + J^T J solved by MPRGP with the active-set Cholesky
-(mprgp.box_qp), warm-started with the previous step's active bounds (without it each QP started from
-the free face and walked the active set back, 2.5x the factorizations), then an Armijo line search
-on the objective. Marquardt's lambda adapts as a trust region's radius would (``_next_damping``):
-divided by alpha after a step the line search cut to alpha, so the next step is about as long as
-the last one that held, and by DAMPING_FALL after a full step, down to MIN_DAMPING. With lambda
-fixed at its floor, the long strands' steps were cut 5-8 times each and their QPs walked through
-many active sets that the cut step never reached: the adaptive lambda took 14% less time on 60
-strands of 100 vertices at 5x their length, with the same static sags (benchmarks/RESULTS.md). A run stops when its remaining steps, at the rate of its last one, could not bring its
-objective below (1 - LEAST_RESIDUAL_GAIN) of itself nor, for the second run, below the first run's:
-on long strands the stall point's run reached its value in a step or two and the run from p0
-crawled towards a worse one, each for all of its 100 steps. The QPs stop at a relative projected
-gradient of max(qp_rtol, LEAST_RESIDUAL_QP_RTOL): a Levenberg-Marquardt step needs a descent
-direction, not the QP's optimum, and the point is only the least sag's start (or the augmented
-Lagrangian's restart, whose own QPs are tight): tight QPs multiplied the phase's factorizations
-several times over for the same sag (benchmarks/RESULTS.md).
+least-residual points. The method is projected Levenberg-Marquardt from each of the caller's starts
+(the point where the augmented Lagrangian stalled and its start: the problem is nonconvex, and
+either can be the better basin), keeping the lowest. Each step is a box QP on diag(eps w + 1e-12 +
+lambda diag(J^T J)) + J^T J solved by MPRGP with the active-set Cholesky (mprgp.box_qp),
+warm-started with the previous step's active bounds (without it each QP started from the free face
+and walked the active set back, 2.5x the factorizations), then an Armijo line search on the
+objective. Marquardt's lambda adapts as a trust region's radius would (``_next_damping``): divided
+by alpha after a step the line search cut to alpha, so the next step is about as long as the last
+one that held, and by DAMPING_FALL after a full step, down to MIN_DAMPING. With lambda fixed at its
+floor, the long strands' steps were cut 5-8 times each and their QPs walked through many active sets
+that the cut step never reached: the adaptive lambda took 14% less time on 60 strands of 100
+vertices at 5x their length, with the same static sags (benchmarks/RESULTS.md). A run stops when its
+remaining steps, at the rate of its last one, could not bring its objective below (1 -
+LEAST_RESIDUAL_GAIN) of itself nor, for the second run, below the first run's: on long strands the
+stall point's run reached its value in a step or two and the run from p0 crawled towards a worse
+one, each for all of its 100 steps. The QPs stop at a relative projected gradient of max(qp_rtol,
+LEAST_RESIDUAL_QP_RTOL): a Levenberg-Marquardt step needs a descent direction, not the QP's optimum,
+and the point is only the least sag's start (or the augmented Lagrangian's restart, whose own QPs
+are tight): tight QPs multiplied the phase's factorizations several times over for the same sag
+(benchmarks/RESULTS.md).
 
 Each run is one compiled call (``least_residual_loop``: c and dc/dp by the at-rest kernels, the Gram
 matrix, the QP and the line search with no Python between steps), as asc's Gauss-Newton loop
