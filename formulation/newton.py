@@ -187,7 +187,7 @@ _NO_MESH = (np.zeros((0, 3)), np.zeros((0, 3), np.int64), *(np.zeros(shape, dtyp
     ((0, 3), float), (0, float), ((0, 3), float))))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _body_distance(x, kind, parameters, mesh):  # pragma: no cover - compiled
     """(phi, n, K) of one body at the points x (n, 3), as Body.evaluate gives them: a sphere
     (parameters: centre, radius), a capsule (a, b, radius) or the mesh (its vertices, faces and

@@ -425,7 +425,7 @@ def _quasi_newton(x, value, p, evaluations, args):  # pragma: no cover - compile
     return x, value, evaluations, False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _nelder_mead(simplex, values, evaluations, violation, args):  # pragma: no cover - compiled
     """Nelder-Mead iterations on ``simplex`` (k + 1 rows) and its ``values`` in place, on Phi, or
     with ``violation`` on V (reaction_violation), until the simplex is within SIMPLEX_SIZE or its

@@ -140,7 +140,7 @@ def kkt_optimality(problem: Problem, p: np.ndarray, near: float = 1e-6, nearby=N
     return max(float(np.abs(step).max(initial=0.0)), float(wrong_size.max(initial=0.0)))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower, upper,
                       near):  # pragma: no cover - compiled
     """``kkt_optimality`` where the saddle system is a band (linalg.saddle.band_order gives
@@ -151,7 +151,7 @@ def band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regula
                                     lower, upper, near, no_band_factors())
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower,
                              upper, near, nearby):  # pragma: no cover - compiled
     """``band_kkt_distance`` with ``kkt_optimality``'s ``nearby``: the band factors of a saddle
@@ -162,7 +162,7 @@ def nearby_band_kkt_distance(dgbtrf, dgbtrs, indptr, indices, data, position, w,
                                 upper, near, nearby)[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def band_kkt_step(dgbtrf, dgbtrs, indptr, indices, data, position, w, regularizer_gradient, c, p, lower, upper,
                   near):  # pragma: no cover - compiled
     """(distance, d): band_kkt_distance and the SQP step d of its last working set, whose largest

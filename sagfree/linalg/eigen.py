@@ -139,7 +139,7 @@ def start_vector(n: int) -> np.ndarray:
     return v0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _largest_inverse_eigenpair(factor, v0, steps, tolerance):  # pragma: no cover - compiled
     """Largest eigenvalue of (L L^T)^-1 and its Ritz vector, by Lanczos with full reorthogonalization."""
     n = v0.size
