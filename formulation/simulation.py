@@ -504,26 +504,33 @@ class _Stepper:
 
 def _advanced(stepper: _Stepper, q, v, frames: Frames, end: float, dt: float, first: bool, halvings: int):
     """(q, v, frames, record) after dt from (q, v, frames), ending at time ``end``: one step, or where
-    its Newton solve fails and ``halvings`` remain, two half steps (each split again where it fails;
-    the record then sums their Newton steps and counts the sub-steps). Where even the sub-steps fail,
-    the failed whole step's state and record."""
+    its Newton solve fails and ``halvings`` remain, two half steps (``_in_halves``; the record counts
+    the failed step's Newton steps too). Where even those fail, the failed whole step's state and
+    record."""
     q_next, used, record = stepper.step(q, v, frames, end, dt, first)
-    if record.converged or halvings == 0:
-        return q_next, (q_next - q) / dt, _transported(used, q_next), record
-    q_half, v_half, frames_half, first_half = _advanced(stepper, q, v, frames, end - 0.5 * dt, 0.5 * dt, first,
-                                                        halvings - 1)
-    if first_half.converged and np.all(np.isfinite(q_half)):
-        q_end, v_end, frames_end, second_half = _advanced(stepper, q_half, v_half, frames_half, end, 0.5 * dt, False,
-                                                          halvings - 1)
-        if second_half.converged:
-            merged = NewtonSolve(first_half.residuals + second_half.residuals,
-                                 record.steps + first_half.steps + second_half.steps,
-                                 record.line_search + first_half.line_search + second_half.line_search,
-                                 record.rejected + first_half.rejected + second_half.rejected,
-                                 record.indefinite + first_half.indefinite + second_half.indefinite, True,
-                                 second_half.message, first_half.substeps + second_half.substeps)
-            return q_end, v_end, frames_end, merged
+    if not record.converged and halvings > 0:
+        halves = _in_halves(stepper, q, v, frames, end, dt, first, halvings - 1)
+        if halves is not None:
+            q_end, v_end, frames_end, first_half, second_half = halves
+            parts = (record, first_half, second_half)
+            return q_end, v_end, frames_end, NewtonSolve(
+                first_half.residuals + second_half.residuals,
+                *(sum(getattr(part, name) for part in parts) for name in ("steps", "line_search", "rejected",
+                                                                            "indefinite")),
+                True, second_half.message, first_half.substeps + second_half.substeps)
     return q_next, (q_next - q) / dt, _transported(used, q_next), record
+
+
+def _in_halves(stepper: _Stepper, q, v, frames: Frames, end: float, dt: float, first: bool, halvings: int):
+    """(q, v, frames, first half's record, second half's) after two steps of dt / 2, each split again
+    where it fails (``_advanced`` with ``halvings``); None where they fail."""
+    q_half, v_half, frames_half, first_half = _advanced(stepper, q, v, frames, end - 0.5 * dt, 0.5 * dt, first,
+                                                        halvings)
+    if not (first_half.converged and np.all(np.isfinite(q_half))):
+        return None
+    q_end, v_end, frames_end, second_half = _advanced(stepper, q_half, v_half, frames_half, end, 0.5 * dt, False,
+                                                      halvings)
+    return (q_end, v_end, frames_end, first_half, second_half) if second_half.converged else None
 
 
 def _transported(frames: Frames, q: np.ndarray) -> Frames:
