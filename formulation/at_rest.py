@@ -173,13 +173,13 @@ def jacobian_values(p, edge_slots, vertex_slots, edge_q, edge_geometry, kinemati
 
 
 @numba.njit(cache=True)
-def _raveled_blocks(by_stencil, width, entries, k):  # pragma: no cover - compiled
-    """Copy CasADi's column-major (width x width) blocks into ``entries`` from k on, each block in C
-    order (as ``ravel`` of compiled.BatchFunction's (N, width, width) output); returns the next k."""
+def raveled_blocks(by_stencil, rows, columns, entries, k):  # pragma: no cover - compiled
+    """Copy CasADi's column-major (rows x columns) blocks into ``entries`` from k on, each block in C
+    order (as ``ravel`` of compiled.BatchFunction's (N, rows, columns) output); returns the next k."""
     for s in range(by_stencil.shape[0]):
-        for i in range(width):
-            for j in range(width):
-                entries[k] = by_stencil[s, j * width + i]
+        for i in range(rows):
+            for j in range(columns):
+                entries[k] = by_stencil[s, j * rows + i]
                 k += 1
     return k
 
@@ -198,8 +198,8 @@ def hessian_band(p, edge_slots, vertex_slots, edge_q, edge_geometry, vertex_q, r
     by_vertex = np.empty((vertices, vertex_width * vertex_width))
     _call(vertex_hessian, vertices, (vertex_q, reference, vertex_geometry, vertex_physical), by_vertex)
     entries = np.empty(by_edge.size + by_vertex.size)
-    k = _raveled_blocks(by_edge, edge_width, entries, np.int64(0))
-    _raveled_blocks(by_vertex, vertex_width, entries, k)
+    k = raveled_blocks(by_edge, edge_width, edge_width, entries, np.int64(0))
+    raveled_blocks(by_vertex, vertex_width, vertex_width, entries, k)
     return scatter_values(target, source, ones, entries, rows * columns).reshape(rows, columns)
 
 

@@ -327,6 +327,21 @@ def _positions(q):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def roundoff_floor(modulus, squared_radius, edge_lengths, reach, weight):  # pragma: no cover - compiled
+    """simulation.roundoff_floor from the edges' Young's moduli (Pa): 2 eps X max_i (sum over the
+    edges at vertex i of E_j pi r^2 / l0_j) / D_i, X the reach and D the vertices' weights."""
+    at_vertex = np.zeros(modulus.size + 1)
+    for j in range(modulus.size):
+        at_vertex[j] += modulus[j] * np.pi * squared_radius / edge_lengths[j]
+    for j in range(modulus.size):
+        at_vertex[j + 1] += modulus[j] * np.pi * squared_radius / edge_lengths[j]
+    largest = -np.inf
+    for i in range(at_vertex.size):
+        largest = max(largest, at_vertex[i] / weight[i])
+    return 2.0 * EPS * reach * largest
+
+
+@numba.njit(cache=True)
 def newton_kernel(q, mu, tangents, a1, twist, p, slots, strand, drivers, plan, gather, free, external, bodies, weight,
                   target, scale, metric, step_limit, floor, anchor, tol, max_steps, residuals, counts, clock, clock_id,
                   seconds):  # pragma: no cover - compiled

@@ -517,6 +517,22 @@ class Problem:
                 (*self._free_gather, self.free_index.size), np.ascontiguousarray(self.free_index, dtype=np.int64),
                 np.ascontiguousarray(self.external_forces, dtype=float), bodies)
 
+    @functools.cached_property
+    def state_jacobian_kernels(self):
+        """What at_state.jacobian_values needs besides p, the state's stencil DOFs and its frames'
+        reference data, to give the CSC values of ``strand_jacobian(p, q, frames)`` (the least sag's
+        linearizations, solvers.least_sag_loop), or None where the stencils' parameter Jacobians are
+        not compiled: ((edge slots, vertex slots), edge geometry, vertex geometry, the supports'
+        entry count, the drivers' addresses (edge, vertex), the pattern's scatter_plan, its CSR
+        (indptr, indices, order))."""
+        functions = (self.edge_functions.parameter_jacobian, self.vertex_functions.parameter_jacobian)
+        if not all(function.compiled for function in functions):
+            return None
+        pattern = self._jacobian_pattern
+        return (self._slot_arrays, *(np.ascontiguousarray(a) for a in (self._edge_geometry, self._vertex_geometry)),
+                int(self._contact_jacobian.size), tuple(function.address for function in functions),
+                pattern.scatter_plan, (pattern.csr_indptr, pattern.csr_indices, pattern.csr_order))
+
     def remember_stability(self, p, value: float, v: np.ndarray) -> None:
         """Store ``stability(p, vector=True)`` at q*, computed by a compiled call from
         ``stability_kernels``, in the memo ``stability`` reads."""

@@ -69,6 +69,7 @@ from .frames import Frames, transport_frames, unit
 from .newton import (ARMIJO, MAX_HALVINGS, MAX_REJECTED, MU_MIN, MU_STATIC, NO_STEP, NON_FINITE,
                      OUT_OF_STEPS, REBASE_ANGLE, STAGNATION_STEPS, STEP_TOLERANCE, CONVERGED, STAGNATED, TINY_STEP,
                      length_keeping_step, newton_kernel, outcome_message, stagnated)
+from .newton import roundoff_floor as newton_roundoff_floor
 from .problem import Problem
 
 #: Newton has converged when the scaled residual max |grad Phi / D| is below this (the other rules
@@ -239,12 +240,19 @@ def roundoff_floor(problem: Problem, p: np.ndarray) -> float:
     vertices, 10 cm), growing like n^2 (4e-4 for a 400-vertex groom strand).
     """
     squared_radius, reach, weight = _roundoff_geometry(problem)
-    modulus = problem.layout.edge_map.evaluate(problem.check_parameters(p))[:, 1]
-    stiffness = modulus * np.pi * squared_radius / problem.edge_lengths
-    at_vertex = np.zeros(stiffness.size + 1)
-    at_vertex[:-1] += stiffness
-    at_vertex[1:] += stiffness
-    return float(2.0 * np.finfo(float).eps * reach * np.max(at_vertex / weight))
+    modulus = np.ascontiguousarray(problem.layout.edge_map.evaluate(problem.check_parameters(p))[:, 1])
+    return float(newton_roundoff_floor(modulus, squared_radius, problem.edge_lengths, reach, weight))
+
+
+def static_solve_constants(problem: Problem) -> tuple:
+    """What a compiled caller of newton.newton_kernel needs besides Problem.newton_kernels to take
+    ``equilibrium``'s static solves itself (solvers.least_sag_loop): (D, M and the step tolerance
+    of ``newton_scales``, (r^2, X, D on the x rows, l0): ``roundoff_floor``'s geometry for
+    newton.roundoff_floor, the last prescribed vertex: the anchor of length_keeping_step)."""
+    squared_radius, reach, weight = _roundoff_geometry(problem)
+    return (*_fixed_scales(problem), (float(squared_radius), reach, np.ascontiguousarray(weight, dtype=float),
+                                      np.ascontiguousarray(problem.edge_lengths, dtype=float)),
+            int(problem.strand.prescribed_vertices.max()))
 
 
 def _roundoff_geometry(problem: Problem) -> tuple[np.ndarray, float, np.ndarray]:

@@ -14,14 +14,14 @@ Jacobian follows from the equilibrium itself: f(q_s, p) = 0 gives
 
 with c = D^-1 S f at q_s (``Problem.strand_jacobian(p, q, frames)``): one banded Cholesky of K per
 Jacobian, which is never formed but applied, each product with it or its transpose one pair of
-band triangular solves and one sparse product, O(n) (``sag_product``): formed, it and its
+band triangular solves and one sparse product, O(n) (solvers.sag_operator): formed, it and its
 products grow like n^2 (at 2000 vertices ~2 GB with its intermediates).
 
 The steps: trust-region reflective least squares (solvers.reflective: scipy's least_squares
 method "trf", ported, which keeps every iterate strictly inside the box), its Gauss-Newton
-direction by CG_ITERATIONS of conjugate gradients at most, compiled with the products
-(``gauss_newton_direction``; scipy's LSMR ran the same iterations in Python, a Python call per
-product: benchmarks/RESULTS.md, 2026-12-05).
+direction by sag_operator.CG_ITERATIONS of conjugate gradients at most, compiled with the products
+(sag_operator.gauss_newton_direction; scipy's LSMR ran the same iterations in Python, a Python
+call per product: benchmarks/RESULTS.md, 2026-12-05).
 The steps are taken in the variables' scales of the Jacobian's column norms, which change by orders
 of magnitude as the multipliers reach their bounds; they are re-estimated every
 RESCALE_EVALUATIONS evaluations where the minimization is, from NORM_PROBES random products
@@ -41,23 +41,32 @@ least S whose equilibrium has its smallest mass-normalized eigenvalue at least
 ``Problem.stability_margin``, confirmed by the equilibrium from q* (the one ``equilibrium`` finds
 and every report measures: stable, and sagging less than the start); VERIFIED candidates are tried
 in order of S, else the start stays.
+
+The minimization runs as one compiled call (solvers.least_sag_loop: the continued static solves,
+linearizations, column norms and trust-region steps with no Python between evaluations) wherever
+the static solve is compiled (Problem.newton_kernels, no friction) and the stencils' parameter
+Jacobians are; ``StaticSag`` through solvers.reflective is its Python form, kept for the rest (the
+lagged friction is numpy code), and visits the same points bit for bit (tests/test_least_sag.py).
+Driven from Python, the calls between evaluations were ~12% of an infeasible strand's time.
 """
 from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, replace
 
-import numba
 import numpy as np
 
 from sagfree.formulation import dofs
+from sagfree.formulation.frames import Frames
 from sagfree.formulation.problem import Problem
-from sagfree.formulation.simulation import Equilibrium, equilibrium
-from sagfree.linalg.cholesky import band_cholesky, band_solve_many, plain_solve
-from sagfree.linalg.compressed import csc_matvec, csc_rmatvec
-from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
+from sagfree.formulation.simulation import RESIDUAL_TOLERANCE, Equilibrium, equilibrium, static_solve_constants
+from sagfree.linalg import timing
+from sagfree.linalg.cholesky import band_cholesky, band_solve_many
 
+from .least_sag_loop import least_sag_loop
 from .reflective import reflective_least_squares
+from .sag_operator import (gauss_newton_direction, hutchinson_norms, rows_transposed_times, sag_product,
+                           sag_transposed_product, tangent_step)
 
 #: Model evaluations (static solves) the minimization may take: enough for the large early gains,
 #: bounded so that a groom of long hair costs seconds per strand.
@@ -66,11 +75,6 @@ MAX_EVALUATIONS = 60
 VERIFIED = 3
 #: Newton steps of a continued static solve before the step counts as too long.
 CONTINUATION_STEPS = 100
-#: Conjugate-gradient iterations of a step's Gauss-Newton direction (``gauss_newton_direction``),
-#: and the relative normal-equations residual that stops them sooner: the step only needs a
-#: direction better than the gradient's, and uncapped the iterations grow with the strand.
-CG_ITERATIONS = 30
-CG_TOLERANCE = 1e-6
 #: Evaluations between rescalings (the Jacobian's column norms re-estimated where the minimization is).
 RESCALE_EVALUATIONS = 5
 #: Random sign vectors of StaticSag.estimated_column_norms (Hutchinson's estimator).
@@ -100,7 +104,7 @@ class StaticSag:
 
     def __init__(self, problem: Problem, start: Equilibrium):
         self.problem, self.state, self.at, self.newton = problem, start, None, 0
-        self.visited: list[tuple[float, np.ndarray, Equilibrium]] = []  # (S, p, equilibrium) of each equilibrium found
+        self.visited: list[tuple[float, np.ndarray, np.ndarray, Frames]] = []  # (S, p, q, frames) of each one found
         weight = np.sqrt(problem.masses / problem.masses.sum()) / problem.strand.length
         # the residuals' rows: each vertex position's index in q and its weight
         self.positions, self.position_weights = dofs.position_index(problem.n_vertices).ravel(), np.repeat(weight, 3)
@@ -137,7 +141,7 @@ class StaticSag:
             return self.state
         state, at, factor, (indptr, indices, data) = known
         q = state.q.copy()
-        q[self.problem.free_index] += _tangent_step(factor, indptr, indices, data, np.ascontiguousarray(p - at))
+        q[self.problem.free_index] += tangent_step(factor, indptr, indices, data, np.ascontiguousarray(p - at))
         return replace(state, q=q)
 
     def linearization(self, p: np.ndarray) -> "SagLinearization":
@@ -150,18 +154,8 @@ class StaticSag:
         if not self._settle(p):
             return np.full(3 * self.problem.n_vertices, np.nan)
         residuals = self.position_weights * (self.state.positions - self.problem.strand.points).ravel()
-        self.visited.append((0.5 * float(residuals @ residuals), p.copy(), self.state))
+        self.visited.append((0.5 * float(residuals @ residuals), p.copy(), self.state.q, self.state.frames))
         return residuals
-
-    def stable_visits(self):
-        """The visited p whose equilibrium has its smallest eigenvalue at least the stability margin,
-        least S first. A generator: each stability is measured when its turn comes (the first
-        candidate usually holds, so one or two measurements where measuring every visit took 8% of
-        the best effort's time)."""
-        problem = self.problem
-        for _, p, state in sorted(self.visited, key=lambda visit: visit[0]):
-            if problem.stability(p, q=state.q, frames=state.frames) >= problem.stability_margin:
-                yield p
 
     def operator(self, p: np.ndarray) -> tuple:
         """The arguments of ``sag_product`` and ``sag_transposed_product`` before the vector: the
@@ -180,10 +174,8 @@ class StaticSag:
         Relative error about sqrt(2 / probes) (25% at 32), enough for variable scales that span
         ~1e7 between the blocks."""
         factor, (indptr, indices, data) = self._linearization(p)
-        signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(self.moving.size, probes))
-        solved = band_solve_many(factor, self._pulled(signs))  # (free DOFs, probes)
-        products = _rows_transposed_times(indptr, indices, data, solved, p.size)  # (parameters, probes): J^T v
-        return np.sqrt(np.einsum("jk,jk->j", products, products) / probes)
+        solved = band_solve_many(factor, self._pulled(probe_signs(self.moving.size, probes, seed)))  # (free, probes)
+        return hutchinson_norms(rows_transposed_times(indptr, indices, data, solved, p.size))  # J^T v's rows
 
     def _pulled(self, values: np.ndarray) -> np.ndarray:
         """(P^T W) values on the free DOFs: the moving residual rows' ``values`` (one row each, any
@@ -236,147 +228,77 @@ class SagLinearization:
         return gauss_newton_direction(*self.operator, d, damping, f)
 
 
-def compile_kernels() -> None:
-    """Compile (or load from numba's cache) the least sag's kernels on a two-row system, with the
-    argument types of a strand's: only a strand the boxes cannot balance runs them, and
-    frontend.warm calls this before any timed solve."""
-    indptr, indices, data, rows = np.array([0, 1, 2]), np.array([0, 1]), np.ones(2), np.arange(2)
-    operator = (np.ones((2, 2)), indptr, indices, data, rows, rows, np.ones(2), 2, 2)
-    sag_transposed_product(*operator, sag_product(*operator, np.ones(2)))
-    gauss_newton_direction(*operator, np.ones(2), np.ones(2), np.ones(2))
-    _rows_transposed_times(indptr, indices, data, np.ones((2, 1)), 2)
-    _tangent_step(operator[0], indptr, indices, data, np.ones(2))
-
-
 def least_sag(problem: Problem, p: np.ndarray, max_evaluations: int = MAX_EVALUATIONS) -> LeastSag:
     """The least-sag parameters in the box from ``p`` (module docstring). Where neither p's static
     solve nor p0's converges there is no equilibrium to continue from: p is kept, unminimized (a
     10,000-vertex strand whose static solves each ran out of Newton steps spent minutes more in
-    continuations that could not converge)."""
+    continuations that could not converge). The minimization is one compiled call
+    (solvers.least_sag_loop) where the static solves and the stencils' parameter Jacobians are
+    compiled, else StaticSag through solvers.reflective (the same steps)."""
     lower, upper = problem.layout.lower, problem.layout.upper
     p = np.clip(problem.check_parameters(p), lower, upper)
     start, naive = equilibrium(problem, p), equilibrium(problem, problem.p0)
     if not (start.converged or naive.converged):
         return LeastSag(p, start, start, naive, 0, 0)
-    model = StaticSag(problem, start if start.converged else naive)
-    evaluations = reflective_least_squares(model.residuals, model.linearization, model.estimated_column_norms, p,
-                                           lower, upper, max_evaluations, RESCALE_EVALUATIONS).evaluations
+    continued = start if start.converged else naive
+    if compiled_least_sag(problem):
+        evaluations, newton, visited = _minimized_compiled(problem, continued, p, max_evaluations)
+    else:
+        model = StaticSag(problem, continued)
+        evaluations = reflective_least_squares(model.residuals, model.linearization, model.estimated_column_norms, p,
+                                               lower, upper, max_evaluations, RESCALE_EVALUATIONS).evaluations
+        newton, visited = model.newton, model.visited
     best, rest = p, start
-    for candidate in itertools.islice(model.stable_visits(), VERIFIED):
+    for candidate in itertools.islice(_stable_visits(problem, visited), VERIFIED):
         candidate = np.clip(candidate, lower, upper)
         settled = equilibrium(problem, candidate)
         if (settled.converged and (not start.converged or settled.relative_sag < start.relative_sag)
                 and problem.stability(candidate, q=settled.q, frames=settled.frames) >= problem.stability_margin):
             best, rest = candidate, settled
             break
-    return LeastSag(best, rest, start, naive, evaluations, model.newton)
+    return LeastSag(best, rest, start, naive, evaluations, newton)
 
 
-@timed(LINEAR_ALGEBRA)
-def sag_product(factor, indptr, indices, data, moving, rows, weights, size, columns, v) -> np.ndarray:
-    """J v for the least-sag Jacobian J = W P K^-1 B (the arguments of StaticSag.operator): one band
-    solve and one sparse product."""
-    return _product(factor, indptr, indices, data, moving, rows, weights, size, np.ascontiguousarray(v, dtype=float))
+def compiled_least_sag(problem: Problem) -> bool:
+    """Whether ``least_sag`` minimizes in one compiled call: the static solve compiled
+    (Problem.newton_kernels; no friction, whose lagged forces are numpy code), the parameter
+    Jacobians' stencils compiled, and a monotonic clock for the timers."""
+    return (problem.newton_kernels is not None and problem.state_jacobian_kernels is not None
+            and timing.CLOCK is not None and not (problem.friction > 0 and problem.contacts.count))
 
 
-@timed(LINEAR_ALGEBRA)
-def sag_transposed_product(factor, indptr, indices, data, moving, rows, weights, size, columns, u) -> np.ndarray:
-    """J^T u for the least-sag Jacobian (``sag_product``)."""
-    return _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns,
-                               np.ascontiguousarray(u, dtype=float))
+def _stable_visits(problem: Problem, visited: list):
+    """The visited p (``visited``: (S, p, q, frames) per equilibrium found) whose equilibrium has its
+    smallest eigenvalue at least the stability margin, least S first. A generator: each stability is
+    measured when its turn comes (the first candidate usually holds, so one or two measurements where
+    measuring every visit took 8% of the best effort's time)."""
+    for _, p, q, frames in sorted(visited, key=lambda visit: visit[0]):
+        if problem.stability(p, q=q, frames=frames) >= problem.stability_margin:
+            yield p
 
 
-@numba.njit(cache=True)
-def _product(factor, indptr, indices, data, moving, rows, weights, size, v):  # pragma: no cover - compiled
-    """J v (sag_product): the moving rows of K^-1 B v (``_tangent_step``), weighted."""
-    solved = _tangent_step(factor, indptr, indices, data, v)
-    out = np.zeros(size)
-    for i in range(moving.size):
-        out[moving[i]] = weights[i] * solved[rows[i]]
-    return out
+def probe_signs(count: int, probes: int, seed: int) -> np.ndarray:
+    """(count, probes) random signs of Hutchinson's estimator (StaticSag.estimated_column_norms), the
+    same for the same arguments."""
+    return np.random.default_rng(seed).choice([-1.0, 1.0], size=(count, probes))
 
 
-@numba.njit(cache=True)
-def _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, u):  # pragma: no cover
-    """J^T u (sag_transposed_product): B^T K^-1 P^T W u."""
-    pulled = np.zeros(factor.shape[0])
-    for i in range(moving.size):
-        pulled[rows[i]] = weights[i] * u[moving[i]]
-    solved = np.empty(factor.shape[0])
-    plain_solve(factor, pulled, solved)
-    return csc_matvec(indptr, indices, data, solved, columns)  # B^T: the rows as csc columns of B^T
-
-
-@timed(LINEAR_ALGEBRA)
-def gauss_newton_direction(factor, indptr, indices, data, moving, rows, weights, size, columns, d, damping,
-                           f) -> np.ndarray:
-    """An approximate minimizer of |J diag(d) p + f|^2 + |damping^(1/2) p|^2 for the least-sag
-    Jacobian J (``sag_product``): CG_ITERATIONS of conjugate gradients on its normal equations at
-    most (``_cgls``), the trust region's Gauss-Newton direction (solvers.reflective)."""
-    return _cgls(factor, indptr, indices, data, moving, rows, weights, size, columns, d, np.sqrt(damping), f,
-                 CG_ITERATIONS, CG_TOLERANCE)
-
-
-@numba.njit(cache=True)
-def _cgls(factor, indptr, indices, data, moving, rows, weights, size, columns, d, root, f, iterations,
-          tolerance):  # pragma: no cover - compiled
-    """CGLS (conjugate gradients on A^T A p = A^T b without forming A^T A; Hestenes & Stiefel 1952)
-    for min |A p - b|, A = [J diag(d); diag(root)], b = [-f; 0], from p = 0: at most ``iterations``,
-    stopped where |A^T r| falls below ``tolerance`` of its start."""
-    n = d.size
-    p, direction, top_step = np.zeros(n), np.empty(n), np.empty(n)
-    top, bottom = -f.copy(), np.zeros(n)
-    pulled = _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, top)
-    gradient = np.empty(n)
-    for j in range(n):
-        gradient[j] = d[j] * pulled[j]
-        direction[j] = gradient[j]
-    gamma = np.dot(gradient, gradient)
-    stop = tolerance * tolerance * gamma
-    for _ in range(iterations):
-        if not gamma > stop:
-            break
-        for j in range(n):
-            top_step[j] = d[j] * direction[j]
-        image = _product(factor, indptr, indices, data, moving, rows, weights, size, top_step)
-        curvature = np.dot(image, image)
-        for j in range(n):
-            curvature += (root[j] * direction[j]) ** 2
-        if not curvature > 0:
-            break
-        alpha = gamma / curvature
-        for j in range(n):
-            p[j] += alpha * direction[j]
-            bottom[j] -= alpha * root[j] * direction[j]
-        for i in range(top.size):
-            top[i] -= alpha * image[i]
-        pulled = _transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, top)
-        for j in range(n):
-            gradient[j] = d[j] * pulled[j] + root[j] * bottom[j]
-        previous, gamma = gamma, np.dot(gradient, gradient)
-        for j in range(n):
-            direction[j] = gradient[j] + gamma / previous * direction[j]
-    return p
-
-
-@numba.njit(cache=True)
-def _tangent_step(factor, indptr, indices, data, dp):  # pragma: no cover - compiled
-    """dq_s = K^-1 B dp on the free DOFs (StaticSag._predicted, and _product's before it picks the
-    residuals' rows): B in compressed rows (B dp: the rows as csc columns of B^T), K by its
-    Cholesky factor."""
-    solved = np.empty(factor.shape[0])
-    plain_solve(factor, csc_rmatvec(indptr, indices, data, dp), solved)
-    return solved
-
-
-@numba.njit(cache=True)
-def _rows_transposed_times(indptr, indices, data, x, columns):  # pragma: no cover - compiled
-    """B^T X for B in compressed rows and X (rows of B x k)."""
-    k = x.shape[1]
-    out = np.zeros((columns, k))
-    for r in range(indptr.size - 1):
-        for t in range(indptr[r], indptr[r + 1]):
-            j, entry = indices[t], data[t]
-            for c in range(k):
-                out[j, c] += entry * x[r, c]
-    return out
+def _minimized_compiled(problem: Problem, continued: Equilibrium, p: np.ndarray, max_evaluations: int):
+    """(evaluations, Newton steps, visited as StaticSag records them) of StaticSag's minimization
+    from p in one compiled call (least_sag_loop), continuing ``continued``."""
+    model = StaticSag(problem, continued)  # its residual rows and weights
+    frames = continued.frames
+    state = tuple(np.array(a, dtype=float) for a in (continued.q, frames.tangents, frames.a1, frames.reference_twist))
+    rows = (np.ascontiguousarray(model.positions, dtype=np.int64), model.position_weights,
+            np.ascontiguousarray(problem.strand.points, dtype=float).ravel(), model.moving,
+            np.ascontiguousarray(model.moving_rows, dtype=np.int64), model.moving_weights)
+    seconds = np.zeros(2)
+    evaluations, newton, (costs, ps, qs, tangents, a1, twists), count = least_sag_loop(
+        np.array(p, dtype=float), problem.layout.lower, problem.layout.upper, state, problem.newton_kernels,
+        static_solve_constants(problem), problem.state_jacobian_kernels, rows,
+        np.ascontiguousarray(problem.dof_masses[problem.free_index]), probe_signs(model.moving.size, NORM_PROBES, 0),
+        RESIDUAL_TOLERANCE, CONTINUATION_STEPS, int(max_evaluations), RESCALE_EVALUATIONS, *timing.CLOCK, seconds)
+    timing.add(timing.MODEL, seconds[0])
+    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
+    visited = [(float(costs[k]), ps[k], qs[k], Frames(tangents[k], a1[k], twists[k])) for k in range(count)]
+    return int(evaluations), int(newton), visited

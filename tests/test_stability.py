@@ -221,18 +221,18 @@ def test_least_sag_through_the_operator(long_strand):
 
 def test_gauss_newton_direction_solves_the_regularized_least_squares(long_strand):
     """The trust region's Gauss-Newton direction on the least-sag operator (compiled CGLS,
-    least_sag._cgls): the transposed product is the dense matrix's, and on a few scaled columns
+    sag_operator.cgls): the transposed product is the dense matrix's, and on a few scaled columns
     (conjugate gradients are exact in as many iterations) the direction is the dense solution of
     min |J diag(d) p + f|^2 + |damping^(1/2) p|^2; columns with d = 0 stay at zero."""
-    from sagfree.solvers import least_sag
+    from sagfree.solvers import sag_operator
 
     problem = sagfree.Problem(long_strand)
     p = stiffest(problem, problem.p0)
     model = StaticSag(problem, equilibrium(problem, p))
     residuals = model.residuals(p)
     operator = model.operator(p)
-    dense = np.array([least_sag.sag_product(*operator, column) for column in np.eye(p.size)]).T
-    pulled = least_sag.sag_transposed_product(*operator, residuals)
+    dense = np.array([sag_operator.sag_product(*operator, column) for column in np.eye(p.size)]).T
+    pulled = sag_operator.sag_transposed_product(*operator, residuals)
     np.testing.assert_allclose(pulled, dense.T @ residuals, rtol=0, atol=1e-9 * np.abs(pulled).max())
     rng = np.random.default_rng(2)
     norms = np.linalg.norm(dense, axis=0)
@@ -240,7 +240,7 @@ def test_gauss_newton_direction_solves_the_regularized_least_squares(long_strand
     d = np.zeros(p.size)
     d[chosen] = np.exp(rng.uniform(-2, 2, chosen.size)) / norms[chosen]
     damping = np.full(p.size, 1e-3)
-    direction = least_sag._cgls(*operator, d, np.sqrt(damping), residuals, 50, 1e-14)
+    direction = sag_operator.cgls(*operator, d, np.sqrt(damping), residuals, 50, 1e-14)
     scaled = dense * d
     exact = np.linalg.solve(scaled.T @ scaled + np.diag(damping), -scaled.T @ residuals)
     np.testing.assert_allclose(direction, exact, rtol=1e-6, atol=1e-9 * np.abs(exact).max())

@@ -87,13 +87,15 @@ from sagfree.frontend.floor_steps import _checked_floors, _stabilization_rounds
 from sagfree.frontend.warm import warm_up
 from sagfree.linalg.cholesky import solve_rows
 from sagfree.solvers.interior_point import interior_point
-from sagfree.solvers.least_sag import _cgls
+from sagfree.solvers.sag_operator import cgls as _cgls
+from sagfree.solvers.least_sag_loop import least_sag_loop
 from sagfree.solvers.reaction_start import least_over_reactions
 from sagfree.linalg.square import square_solutions
 warm_up("asc")
 print(len(interior_point.signatures), parameter_hessians.cache_info().currsize, len(_checked_floors.signatures),
       len(_stabilization_rounds.signatures), len(solve_rows.signatures), len(newton_kernel.signatures),
-      len(_cgls.signatures), len(least_over_reactions.signatures), len(square_solutions.signatures))
+      len(_cgls.signatures), len(least_over_reactions.signatures), len(square_solutions.signatures),
+      len(least_sag_loop.signatures))
 """
 
 
@@ -102,16 +104,17 @@ def test_the_warm_up_prepares_what_rare_branches_run(tmp_path):
     fallback and the constraints' curvature stencils were built inside timed solves, and the
     warm-up strand is stable, so the stabilization round's kernel (floor_steps) was compiled by
     every worker of a batch, and so was the compiled loop of rounds, and the warm-up strand is feasible,
-    so the least sag's many-right-hand-side solve, its static solves' compiled Newton and its
-    trust region's Gauss-Newton direction were loaded by the first infeasible strand, and the
+    so the least sag's many-right-hand-side solve, its static solves' compiled Newton, its
+    trust region's Gauss-Newton direction and its compiled loop were loaded by the first infeasible
+    strand, and the
     warm-up strand is held by its root alone, so the search over a held strand's reactions and its
     band solves were loaded by the first strand with a pinned tip: in a fresh process the warm-up
-    has all nine ready."""
+    has all ten ready."""
     run = subprocess.run([sys.executable, "-c", WARMED_RARE_BRANCHES], capture_output=True, text=True,
                          timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]
     counts = list(map(int, run.stdout.strip().splitlines()[-1].split()))
-    assert len(counts) == 9 and min(counts) >= 1, counts
+    assert len(counts) == 10 and min(counts) >= 1, counts
 
 
 FIRST_CHECKS = """

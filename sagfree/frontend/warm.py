@@ -36,9 +36,10 @@ from sagfree.formulation.simulation import equilibrium, sag_check
 from sagfree.formulation.strand import Strand
 from sagfree.kernel_memory import release_linking_ir
 from sagfree.linalg import cholesky
-from sagfree.solvers import interior_point, least_sag, reaction_start
+from sagfree.solvers import interior_point, reaction_start, sag_operator
 from sagfree.solvers.alm import zero_counts
 from sagfree.solvers.least_residual import least_residual
+from sagfree.solvers.least_sag import least_sag
 from sagfree.solvers.statics_start import unbalanceable
 
 from .priming import primed_in_child
@@ -162,7 +163,7 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
     _WARM.add(key)
     _quietly(interior_point.compile_kernels)
     _quietly(cholesky.compile_kernels)
-    _quietly(least_sag.compile_kernels)
+    _quietly(sag_operator.compile_kernels)
     _quietly(reaction_start.compile_kernels)
     entry = solver_entry(solver)
     _quietly(_solve_warm_strand, entry, solver_options, problem_options or {}, paths)
@@ -173,10 +174,13 @@ def warm_up(solver: str, solver_options: dict | None = None, problem_options: di
 def warm_paths(solver: str, solver_options: dict | None = None, problem_options: dict | None = None) -> None:
     """The warm-up strand solved along the solver's warm paths alone (SolverEntry.warm_paths), the
     part of ``warm_up`` that priming's second child runs while the first runs the rest: for asc
-    the compiled outer loop, the largest group of kernels that nothing else calls. Raises what the
-    solve raises (the child's exit status is all that reads it)."""
+    the compiled outer loop, the largest group of kernels that nothing else calls; and every
+    solver's best effort, the least sag's compiled loop (solvers.least_sag_loop, ~25 s to compile,
+    which made the first child the longer one). Raises what the solve raises (the child's exit
+    status is all that reads it)."""
     entry = solver_entry(solver)
-    _solved_along(entry, solver_options, problem_options or {}, entry.warm_paths)
+    problem = _solved_along(entry, solver_options, problem_options or {}, entry.warm_paths)
+    least_sag(problem, problem.p0, max_evaluations=2)
 
 
 def warm_check(problem_options: dict | None = None) -> float:
@@ -216,13 +220,17 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     infeasibility certificate checked (solvers.statics_start: only strands that fail their start
     reach it), a stabilization round taken from its optimum (the warm-up strand is stable, and
     the round's kernels, floor_steps, otherwise compile or load in the first stabilized strand of
-    each worker of a batch), one Newton step of its static solve and one step of the least
-    residual (formulation.newton, solvers.least_residual: the best effort of an infeasible strand
-    runs both, and would load them inside the first one's time)."""
+    each worker of a batch), one Newton step of its static solve, one step of the least residual
+    and, with ``paths`` (without: priming's sibling child compiles it, ``warm_paths``), two
+    evaluations of the least sag (formulation.newton, solvers.least_residual,
+    solvers.least_sag_loop: the best effort of an infeasible strand runs them, and would load them
+    inside the first one's time)."""
     problem = _solved_along(entry, solver_options, problem_options, ({}, *(entry.warm_paths if paths else ())))
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
     equilibrium(problem, problem.p0, max_steps=1)
     least_residual(problem, [problem.p0], zero_counts(), max_steps=1)
+    if paths:
+        least_sag(problem, problem.p0, max_evaluations=2)
     change = problem.remembered("least rest change")
     if change is not None:  # the infeasibility certificate's kernels (a feasible strand's solve skips it)
         unbalanceable(problem, change)

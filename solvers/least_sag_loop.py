@@ -1,0 +1,331 @@
+"""The least sag's minimization as one compiled call: solvers.least_sag's StaticSag and
+solvers.reflective's trust-region loop, line by line, with no Python between evaluations.
+
+An evaluation of the least sag is a continued static solve (newton.newton_kernel), each accepted
+point a linearization (the free Hessian band at the equilibrium, its banded Cholesky factor, dc/dp
+there by at_state.jacobian_values) and each step conjugate gradients through the sag operator
+(solvers.sag_operator); driven from Python, the calls between them were ~12% of an infeasible
+strand's time. ``least_sag_loop`` runs the whole minimization and returns the visited equilibria;
+the candidates' confirmation from q* (least_sag.least_sag) stays in Python: at most VERIFIED static
+solves, each one compiled call.
+
+The model's state lives in arrays that the loop's helpers update in place: the last equilibrium
+found (q and its frames), the point p it is at, and the last linearization (the p and equilibrium
+it was taken at, K's factor and B's values); ``flags`` numbers the equilibria found so that "the
+linearization is at the current equilibrium" is StaticSag's ``known[0] is self.state``. The
+arithmetic is StaticSag's and reflective_least_squares' (the same kernels and numeric helpers,
+solvers.reflective), so the two paths visit the same points to rounding (tests/test_least_sag.py).
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from sagfree.formulation import at_state
+from sagfree.formulation.newton import CONVERGED, MU_MIN, STAGNATED, TINY_STEP, newton_kernel, roundoff_floor
+from sagfree.formulation.parameters import evaluate_slots
+from sagfree.linalg import timing
+from sagfree.linalg.cholesky import factor_active, solve_rows
+
+from . import reflective as trf
+from .sag_operator import (CG_ITERATIONS, CG_TOLERANCE, cgls, hutchinson_norms, jacobian_product,
+                           jacobian_transposed_product, rows_transposed_times, tangent_step)
+
+#: places in ``flags``: the equilibrium's number, whether ``at`` holds its p, the number of the
+#: equilibrium the linearization was taken at (-1: none yet), the static solves' Newton steps, and
+#: the visited equilibria recorded
+STATE, AT, LINEARIZED, NEWTON, VISITS = range(5)
+#: seconds' places: model evaluation, linear algebra (timing.MODEL, timing.LINEAR_ALGEBRA)
+_MODEL, _ALGEBRA = 0, 1
+
+
+@numba.njit(cache=True, inline="always")
+def _static_solve(q, tangents, a1, twist, p, newton, constants, tol, max_steps, clock, clock_id,
+                  seconds):  # pragma: no cover - compiled
+    """simulation.equilibrium from (q, frames) with damping MU_MIN (a continuation's start):
+    (q, converged, tangents, a1, twist, Newton steps)."""
+    slots, strand, drivers, plan, gather, free, external, bodies = newton
+    scale, metric, step_limit, geometry, anchor = constants
+    squared_radius, reach, weight, lengths = geometry
+    modulus = np.ascontiguousarray(evaluate_slots(slots[0][0], slots[0][1], slots[0][2], slots[0][3], p)[:, 1])
+    floor = roundoff_floor(modulus, squared_radius, lengths, reach, weight)
+    residuals, counts, empty = np.empty(max_steps + 1), np.zeros(5, dtype=np.int64), np.empty(0)
+    q, outcome, _, tangents, a1, twist = newton_kernel(
+        q, MU_MIN, tangents, a1, twist, p, slots, strand, drivers, plan, gather, free, external, bodies, empty, empty,
+        scale, metric, step_limit, floor, anchor, tol, max_steps, residuals, counts, clock, clock_id, seconds)
+    converged = outcome == CONVERGED or outcome == TINY_STEP or outcome == STAGNATED
+    return q, converged, tangents, a1, twist, counts[1]
+
+
+@numba.njit(cache=True, inline="always")
+def _settle(p, state, flags, at, linearized, pattern, newton, constants, tol, max_steps, clock, clock_id,
+            seconds):  # pragma: no cover - compiled
+    """StaticSag._settle: continue the equilibrium to p from its tangent's prediction where the
+    last linearization is at it (else, or where Newton fails from the prediction, from the
+    equilibrium itself); the state updated in place where one was found. Whether one was."""
+    q, tangents, a1, twist = state
+    at_p, factor, data = linearized
+    indptr, indices = pattern
+    free = newton[5]
+    predicted = flags[LINEARIZED] == flags[STATE]
+    converged = False
+    for attempt in range(2 if predicted else 1):
+        start = q
+        if attempt == 0 and predicted:
+            start = q.copy()
+            step = tangent_step(factor, indptr, indices, data, np.ascontiguousarray(p - at_p))
+            for k in range(free.size):
+                start[free[k]] += step[k]
+        found, converged, found_tangents, found_a1, found_twist, steps = _static_solve(
+            start, tangents, a1, twist, p, newton, constants, tol, max_steps, clock, clock_id, seconds)
+        flags[NEWTON] += steps
+        if converged:
+            q[:] = found
+            tangents[:] = found_tangents
+            a1[:] = found_a1
+            twist[:] = found_twist
+            at[:] = p
+            flags[STATE] += 1
+            flags[AT] = 1
+            break
+    return converged
+
+
+@numba.njit(cache=True)
+def _model(linearize, p, state, flags, at, linearized, fixed):  # pragma: no cover - compiled
+    """StaticSag's two evaluations in one kernel: without ``linearize`` the residuals at p
+    (StaticSag.residuals), with it (K's factor, B's values) at the equilibrium of p
+    (StaticSag._linearization). Returns (the residuals or nothing, the factor, the values). One
+    kernel with one call of each heavy part: every kernel that calls the static solve or the
+    linearization cost seconds of compilation of its own. ``fixed``: least_sag_loop's arguments
+    (newton, constants, tol, max_steps, the residuals' rows, visited, jacobian, masses, clock,
+    clock_id, seconds)."""
+    newton, constants, tol, max_steps, rows, visited, jacobian, masses, clock, clock_id, seconds = fixed
+    at_p, factor, data = linearized
+    settled = True
+    if not linearize or not flags[AT] or not np.array_equal(p, at):
+        settled = _settle(p, state, flags, at, linearized, jacobian[6][:2], newton, constants, tol, max_steps, clock,
+                          clock_id, seconds)
+    if not linearize:
+        return _recorded(p, settled, state, flags, rows, visited), factor, data
+    if not (flags[LINEARIZED] == flags[STATE] and np.array_equal(at_p, p)):
+        factor, data = _linearized(p, state, newton, constants, jacobian, masses, clock, clock_id, seconds)
+        at_p[:] = p
+        flags[LINEARIZED] = flags[STATE]
+    return np.empty(0), factor, data
+
+
+@numba.njit(cache=True, inline="always")
+def _residuals(p, memory, factor, data, fixed):  # pragma: no cover - compiled
+    """StaticSag.residuals(p) (``_model``); memory: the model's (state, flags, at, at_linear)."""
+    state, flags, at, at_linear = memory
+    return _model(np.bool_(False), p, state, flags, at, (at_linear, factor, data), fixed)[0]
+
+
+@numba.njit(cache=True, inline="always")
+def _linearization(p, memory, factor, data, fixed):  # pragma: no cover - compiled
+    """StaticSag._linearization(p) (``_model``): (K's factor, B's values), the last ones if unchanged."""
+    state, flags, at, at_linear = memory
+    _, factor, data = _model(np.bool_(True), p, state, flags, at, (at_linear, factor, data), fixed)
+    return factor, data
+
+
+@numba.njit(cache=True, inline="always")
+def _recorded(p, settled, state, flags, rows, visited):  # pragma: no cover - compiled
+    """StaticSag.residuals after its settle: sqrt(m_i / M) (x_i - x_i*) / L at the equilibrium
+    (NaN where none was found), recorded in ``visited`` (S, p, q, tangents, a1, twist)."""
+    positions, weights, points = rows[0], rows[1], rows[2]
+    out = np.full(positions.size, np.nan)
+    if not settled:
+        return out
+    q, tangents, a1, twist = state
+    for k in range(positions.size):
+        out[k] = weights[k] * (q[positions[k]] - points[k])
+    costs, ps, qs, all_tangents, all_a1, twists = visited
+    k = flags[VISITS]
+    costs[k] = 0.5 * np.dot(out, out)
+    ps[k] = p
+    qs[k] = q
+    all_tangents[k] = tangents
+    all_a1[k] = a1
+    twists[k] = twist
+    flags[VISITS] += 1
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _linearized(p, state, newton, constants, jacobian, masses, clock, clock_id, seconds):  # pragma: no cover
+    """(K's Cholesky factor, B's CSR values) at the current equilibrium (StaticSag._linearization):
+    K the free static Hessian band, shifted by the mass metric where E has a saddle there, B the
+    rows of D dc/dp."""
+    q, tangents, a1, twist = state
+    buffer = np.zeros(2, dtype=np.int64)
+    started = timing.clock_seconds(clock, clock_id, buffer)
+    band, values = at_state.linearization(p, q, tangents, a1, twist, newton, jacobian)
+    now = timing.clock_seconds(clock, clock_id, buffer)
+    seconds[_MODEL] += now - started
+    size, width = band.shape[1], band.shape[0]
+    no_border, no_corner, everything = np.zeros((0, size)), np.zeros((0, 0)), np.ones(size, dtype=np.bool_)
+    factor = np.empty((size, width))
+    factored, shift = factor_active(band.copy(), no_border, no_corner, everything, factor, no_border, no_corner,
+                                    np.int64(0), np.int64(0)), 0.0
+    while not factored:
+        shift = max(4.0 * shift, 1.0)
+        shifted = band.copy()
+        for j in range(size):
+            shifted[0, j] += shift * masses[j]
+        factored = factor_active(shifted, no_border, no_corner, everything, factor, no_border, no_corner,
+                                 np.int64(0), np.int64(0))
+    row_scale, (indptr, _, order) = constants[0], jacobian[6]
+    data = np.empty(order.size)
+    for r in range(indptr.size - 1):
+        for t in range(indptr[r], indptr[r + 1]):
+            data[t] = values[order[t]] * row_scale[r]
+    seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - now
+    return factor, data
+
+
+@numba.njit(cache=True, inline="always")
+def _product(operator, v):  # pragma: no cover - compiled
+    """J v for the sag operator (sag_operator.sag_product)."""
+    factor, indptr, indices, data, moving, rows, weights, size, _ = operator
+    return jacobian_product(factor, indptr, indices, data, moving, rows, weights, size, v)
+
+
+@numba.njit(cache=True, inline="always")
+def _transposed_product(operator, u):  # pragma: no cover - compiled
+    """J^T u for the sag operator (sag_operator.sag_transposed_product)."""
+    factor, indptr, indices, data, moving, rows, weights, _, columns = operator
+    return jacobian_transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, u)
+
+
+@numba.njit(cache=True, inline="always")
+def _column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs, columns):  # pragma: no cover
+    """StaticSag.estimated_column_norms at a linearization: Hutchinson's estimate from the
+    fixed random ``signs`` (moving rows x probes)."""
+    pulled = np.zeros((factor.shape[0], signs.shape[1]))
+    for i in range(moving_rows.size):
+        for k in range(signs.shape[1]):
+            pulled[moving_rows[i], k] = moving_weights[i] * signs[i, k]
+    solve_rows(factor, pulled)
+    return hutchinson_norms(rows_transposed_times(indptr, indices, data, pulled, columns))
+
+
+@numba.njit(cache=True, inline="always")
+def _select_step(x, operator, diag_h, g_h, p, p_h, d, radius, lower, upper, theta):  # pragma: no cover - compiled
+    """reflective.select_step through the sag operator."""
+    if trf.inside(x, p, lower, upper):
+        return p, p_h, -trf.quadratic_value(_product(operator, d * p_h), g_h, p_h, diag_h)
+    p, p_h, r_h, r, r_stride_l, r_stride_u = trf.reflection(x, p, p_h, d, radius, lower, upper, theta)
+    r_value = np.inf
+    if r_stride_l <= r_stride_u:
+        a, b, c = trf.quadratic_1d_from(_product(operator, d * r_h), _product(operator, d * p_h), g_h, r_h, p_h,
+                                        diag_h)
+        r_stride, r_value = trf.minimize_quadratic_1d(a, b, r_stride_l, r_stride_u, c)
+        r_h = r_h * r_stride + p_h
+        r = r_h * d
+    p, p_h = p * theta, p_h * theta
+    p_value = trf.quadratic_value(_product(operator, d * p_h), g_h, p_h, diag_h)
+    ag_h, ag, ag_stride = trf.gradient_step(x, g_h, d, radius, lower, upper, theta)
+    a, b = trf.quadratic_1d(_product(operator, d * ag_h), g_h, ag_h, diag_h)
+    return trf.least_of_three(p, p_h, p_value, r, r_h, r_value, ag, ag_h, a, b, ag_stride)
+
+
+@numba.njit(cache=True)
+def least_sag_loop(x0, lower, upper, state, newton, constants, jacobian, rows, masses, signs, tol, max_steps,
+                   max_evaluations, rescale_every, clock, clock_id, seconds):  # pragma: no cover - compiled
+    """reflective_least_squares on StaticSag's residuals from x0 in the box, the equilibrium
+    continued from ``state`` (q, tangents, a1, twist; updated in place). newton: Problem.newton_kernels;
+    constants: simulation.static_solve_constants; jacobian: Problem.state_jacobian_kernels; rows:
+    the residuals' (position index in q, weights, groom positions, moving rows, their DOFs' rows in
+    K, their weights); masses: the free DOFs' masses; signs: the column norms' random signs;
+    tol, max_steps: the continued static solves'. seconds [model, linear algebra] accumulated.
+    Returns (evaluations, Newton steps, visited equilibria (S, p, q, tangents, a1, twist), their count)."""
+    positions, weights, points, moving, moving_rows, moving_weights = rows
+    q = state[0]
+    n, size = x0.size, positions.size
+    visited = (np.empty(max_evaluations), np.empty((max_evaluations, n)), np.empty((max_evaluations, q.size)),
+               np.empty((max_evaluations,) + state[1].shape), np.empty((max_evaluations,) + state[2].shape),
+               np.empty((max_evaluations, state[3].size)))
+    flags = np.zeros(5, dtype=np.int64)
+    flags[LINEARIZED] = -1
+    at, at_linear = np.zeros(n), np.zeros(n)
+    _, _, _, _, _, _, (indptr, indices, order) = jacobian
+    factor, data = np.zeros((masses.size, newton[3][3])), np.zeros(order.size)
+    fixed = (newton, constants, tol, max_steps, (positions, weights, points), visited, jacobian, masses, clock,
+             clock_id, seconds)
+    memory = (state, flags, at, at_linear)
+    buffer = np.zeros(2, dtype=np.int64)
+
+    x = trf.make_strictly_feasible(x0, lower, upper, 1e-10)
+    f = _residuals(x, memory, factor, data, fixed)
+    evaluations = 1
+    if not np.all(np.isfinite(f)):
+        return evaluations, flags[NEWTON], visited, flags[VISITS]
+    cost = 0.5 * np.dot(f, f)
+    factor, data = _linearization(x, memory, factor, data, fixed)
+    operator = (factor, indptr, indices, data, moving, moving_rows, moving_weights, size, n)
+    started = timing.clock_seconds(clock, clock_id, buffer)
+    g = _transposed_product(operator, f)
+    scale = trf.scales_of(_column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs, n))
+    seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
+    since = 0
+    v, dv = trf.cl_scaling_vector(x, g, lower, upper)
+    trf.scaled_variables(v, dv, g, scale)
+    radius = trf.first_radius(x, v, scale)
+    status = 0
+    while True:
+        v, dv = trf.cl_scaling_vector(x, g, lower, upper)
+        g_norm = trf.gradient_norm(g, v)
+        if g_norm < trf.GTOL:
+            status = 1
+        if status or evaluations >= max_evaluations:
+            break
+        if since >= rescale_every:
+            factor, data = _linearization(x, memory, factor, data, fixed)
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            scale = trf.scales_of(_column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs, n))
+            seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
+            since = 0
+        started = timing.clock_seconds(clock, clock_id, buffer)
+        d, diag_h, g_h = trf.scaled_variables(v, dv, g, scale)
+        a, b = trf.quadratic_1d(_product(operator, d * -g_h), g_h, -g_h, diag_h)
+        regularization = -trf.minimize_quadratic_1d(a, b, 0.0, radius / trf.norm(g_h))[1] / radius**2
+        gn_h = cgls(*operator, d, np.sqrt(diag_h + regularization), f, np.int64(CG_ITERATIONS), CG_TOLERANCE)
+        basis = trf.subspace_basis(g_h, gn_h)
+        b_s, g_s = trf.subspace_model(_product(operator, d * basis[0]), _product(operator, d * basis[1]), basis,
+                                      diag_h, g_h)
+        seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
+        theta = max(0.995, 1 - g_norm)
+        reduction = -1.0
+        trial, f_trial, trial_cost = x, f, cost
+        while reduction <= 0 and evaluations < max_evaluations:
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            p_s, _ = trf.solve_trust_region_2d(b_s, g_s, radius)
+            p_h = trf.in_subspace(basis, p_s)
+            step, step_h, predicted = _select_step(x, operator, diag_h, g_h, d * p_h, p_h, d, radius, lower, upper,
+                                                   theta)
+            seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
+            trial = trf.make_strictly_feasible(x + step, lower, upper)
+            f_trial = _residuals(trial, memory, factor, data, fixed)
+            evaluations, since = evaluations + 1, since + 1
+            step_h_norm = trf.norm(step_h)
+            if not np.all(np.isfinite(f_trial)):
+                radius = 0.25 * step_h_norm
+                continue
+            trial_cost = 0.5 * np.dot(f_trial, f_trial)
+            reduction = cost - trial_cost
+            new_radius, ratio = trf.update_tr_radius(radius, reduction, predicted, step_h_norm,
+                                                     step_h_norm > 0.95 * radius)
+            status = trf.check_termination(reduction, cost, trf.norm(step), trf.norm(x), ratio, trf.FTOL, trf.XTOL)
+            if status:
+                break
+            radius = new_radius
+        if reduction > 0:
+            x, f, cost = trial, f_trial, trial_cost
+            factor, data = _linearization(x, memory, factor, data, fixed)
+            operator = (factor, indptr, indices, data, moving, moving_rows, moving_weights, size, n)
+            started = timing.clock_seconds(clock, clock_id, buffer)
+            g = _transposed_product(operator, f)
+            seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
+    return evaluations, flags[NEWTON], visited, flags[VISITS]
