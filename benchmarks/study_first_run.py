@@ -44,8 +44,8 @@ def priming_children() -> None:
         start = time.perf_counter()
         with ThreadPoolExecutor(2) as pool:
             first, second = pool.map(child, (priming._CHILD_CODE, priming._PATHS_CODE))
-    print(f"first child (asc's warm-up): exit {first[0]}, {first[1]:.1f} s")
-    print(f"second child (warm paths, forward check): exit {second[0]}, {second[1]:.1f} s")
+    print(f"first child (asc's warm-up, forward check): exit {first[0]}, {first[1]:.1f} s")
+    print(f"second child (warm paths, the least sag's loop): exit {second[0]}, {second[1]:.1f} s")
     print(f"first run's wait: {time.perf_counter() - start:.1f} s")
 
 

@@ -63,7 +63,7 @@ from sagfree.formulation.simulation import RESIDUAL_TOLERANCE, Equilibrium, equi
 from sagfree.linalg import timing
 from sagfree.linalg.cholesky import band_cholesky, band_solve_many
 
-from .least_sag_loop import least_sag_loop
+from .least_sag_loop import NEWTON, VISITS, least_sag_loop, model_arguments, prepare_model
 from .reflective import reflective_least_squares
 from .sag_operator import (gauss_newton_direction, hutchinson_norms, rows_transposed_times, sag_product,
                            sag_transposed_product, tangent_step)
@@ -286,19 +286,37 @@ def probe_signs(count: int, probes: int, seed: int) -> np.ndarray:
 def _minimized_compiled(problem: Problem, continued: Equilibrium, p: np.ndarray, max_evaluations: int):
     """(evaluations, Newton steps, visited as StaticSag records them) of StaticSag's minimization
     from p in one compiled call (least_sag_loop), continuing ``continued``."""
+    x0, (memory, factor, data, fixed, operator_rows), signs = _loop_arguments(problem, continued, p, max_evaluations)
+    evaluations = least_sag_loop(x0, problem.layout.lower, problem.layout.upper, memory, factor, data, fixed,
+                                 operator_rows, signs, int(max_evaluations), RESCALE_EVALUATIONS)
+    seconds, (costs, ps, qs, tangents, a1, twists), flags = fixed[-1], fixed[5], memory[1]
+    timing.add(timing.MODEL, seconds[0])
+    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
+    visited = [(float(costs[k]), ps[k], qs[k], Frames(tangents[k], a1[k], twists[k])) for k in range(flags[VISITS])]
+    return int(evaluations), int(flags[NEWTON]), visited
+
+
+def _loop_arguments(problem: Problem, continued: Equilibrium, p: np.ndarray, max_evaluations: int):
+    """(x0, least_sag_loop.model_arguments, the column norms' signs) for a minimization from p
+    continuing ``continued``."""
     model = StaticSag(problem, continued)  # its residual rows and weights
     frames = continued.frames
     state = tuple(np.array(a, dtype=float) for a in (continued.q, frames.tangents, frames.a1, frames.reference_twist))
     rows = (np.ascontiguousarray(model.positions, dtype=np.int64), model.position_weights,
             np.ascontiguousarray(problem.strand.points, dtype=float).ravel(), model.moving,
             np.ascontiguousarray(model.moving_rows, dtype=np.int64), model.moving_weights)
-    seconds = np.zeros(2)
-    evaluations, newton, (costs, ps, qs, tangents, a1, twists), count = least_sag_loop(
-        np.array(p, dtype=float), problem.layout.lower, problem.layout.upper, state, problem.newton_kernels,
-        static_solve_constants(problem), problem.state_jacobian_kernels, rows,
-        np.ascontiguousarray(problem.dof_masses[problem.free_index]), probe_signs(model.moving.size, NORM_PROBES, 0),
-        RESIDUAL_TOLERANCE, CONTINUATION_STEPS, int(max_evaluations), RESCALE_EVALUATIONS, *timing.CLOCK, seconds)
-    timing.add(timing.MODEL, seconds[0])
-    timing.add(timing.LINEAR_ALGEBRA, seconds[1])
-    visited = [(float(costs[k]), ps[k], qs[k], Frames(tangents[k], a1[k], twists[k])) for k in range(count)]
-    return int(evaluations), int(newton), visited
+    arguments = model_arguments(p, state, problem.newton_kernels, static_solve_constants(problem),
+                                problem.state_jacobian_kernels, rows,
+                                np.ascontiguousarray(problem.dof_masses[problem.free_index]), RESIDUAL_TOLERANCE,
+                                CONTINUATION_STEPS, int(max_evaluations), *timing.CLOCK, np.zeros(2))
+    return np.array(p, dtype=float), arguments, probe_signs(model.moving.size, NORM_PROBES, 0)
+
+
+def compile_model(problem: Problem) -> None:
+    """Compile (or load) the compiled least sag's model kernel alone, on ``problem`` at p0
+    (least_sag_loop.prepare_model): priming's first child does, so that its sibling, which compiles
+    the loop, loads it. Where the least sag is not compiled for the problem, nothing."""
+    if compiled_least_sag(problem):
+        continued = equilibrium(problem, problem.p0)
+        x0, (memory, factor, data, fixed, _), _ = _loop_arguments(problem, continued, problem.p0, 1)
+        prepare_model(x0, memory, factor, data, fixed)

@@ -232,36 +232,24 @@ def _select_step(x, operator, diag_h, g_h, p, p_h, d, radius, lower, upper, thet
 
 
 @numba.njit(cache=True)
-def least_sag_loop(x0, lower, upper, state, newton, constants, jacobian, rows, masses, signs, tol, max_steps,
-                   max_evaluations, rescale_every, clock, clock_id, seconds):  # pragma: no cover - compiled
-    """reflective_least_squares on StaticSag's residuals from x0 in the box, the equilibrium
-    continued from ``state`` (q, tangents, a1, twist; updated in place). newton: Problem.newton_kernels;
-    constants: simulation.static_solve_constants; jacobian: Problem.state_jacobian_kernels; rows:
-    the residuals' (position index in q, weights, groom positions, moving rows, their DOFs' rows in
-    K, their weights); masses: the free DOFs' masses; signs: the column norms' random signs;
-    tol, max_steps: the continued static solves'. seconds [model, linear algebra] accumulated.
-    Returns (evaluations, Newton steps, visited equilibria (S, p, q, tangents, a1, twist), their count)."""
-    positions, weights, points, moving, moving_rows, moving_weights = rows
-    q = state[0]
+def least_sag_loop(x0, lower, upper, memory, factor, data, fixed, operator_rows, signs, max_evaluations,
+                   rescale_every):  # pragma: no cover - compiled
+    """reflective_least_squares on StaticSag's residuals from x0 in the box; ``model_arguments``
+    gives memory, factor, data, fixed and operator_rows. The equilibrium continued from memory's
+    state is updated in place, and fixed's visited receives the equilibria found (flags[VISITS] of
+    them). Returns the evaluations."""
+    state, flags, at, at_linear = memory
+    newton, constants, tol, max_steps, (positions, _, _), visited, jacobian, masses, clock, clock_id, seconds = fixed
+    moving, moving_rows, moving_weights = operator_rows
+    _, _, _, _, _, _, (indptr, indices, _) = jacobian
     n, size = x0.size, positions.size
-    visited = (np.empty(max_evaluations), np.empty((max_evaluations, n)), np.empty((max_evaluations, q.size)),
-               np.empty((max_evaluations,) + state[1].shape), np.empty((max_evaluations,) + state[2].shape),
-               np.empty((max_evaluations, state[3].size)))
-    flags = np.zeros(5, dtype=np.int64)
-    flags[LINEARIZED] = -1
-    at, at_linear = np.zeros(n), np.zeros(n)
-    _, _, _, _, _, _, (indptr, indices, order) = jacobian
-    factor, data = np.zeros((masses.size, newton[3][3])), np.zeros(order.size)
-    fixed = (newton, constants, tol, max_steps, (positions, weights, points), visited, jacobian, masses, clock,
-             clock_id, seconds)
-    memory = (state, flags, at, at_linear)
     buffer = np.zeros(2, dtype=np.int64)
 
     x = trf.make_strictly_feasible(x0, lower, upper, 1e-10)
     f = _residuals(x, memory, factor, data, fixed)
     evaluations = 1
     if not np.all(np.isfinite(f)):
-        return evaluations, flags[NEWTON], visited, flags[VISITS]
+        return evaluations
     cost = 0.5 * np.dot(f, f)
     factor, data = _linearization(x, memory, factor, data, fixed)
     operator = (factor, indptr, indices, data, moving, moving_rows, moving_weights, size, n)
@@ -328,4 +316,36 @@ def least_sag_loop(x0, lower, upper, state, newton, constants, jacobian, rows, m
             started = timing.clock_seconds(clock, clock_id, buffer)
             g = _transposed_product(operator, f)
             seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
-    return evaluations, flags[NEWTON], visited, flags[VISITS]
+    return evaluations
+
+
+def model_arguments(x0, state, newton, constants, jacobian, rows, masses, tol, max_steps, max_evaluations, clock,
+                    clock_id, seconds):
+    """(memory, factor, data, fixed, operator_rows) of ``least_sag_loop`` and ``_model``: state the
+    equilibrium to continue (q, tangents, a1, twist; C arrays, updated in place); newton:
+    Problem.newton_kernels; constants: simulation.static_solve_constants; jacobian:
+    Problem.state_jacobian_kernels; rows: the residuals' (position index in q, weights, groom
+    positions, moving rows, their DOFs' rows in K, their weights); masses: the free DOFs' masses;
+    tol, max_steps: the continued static solves'; seconds [model, linear algebra] accumulated.
+    Made here, in Python, for both: priming compiles ``_model`` with these types on its own
+    (``prepare_model``)."""
+    positions, weights, points, moving, moving_rows, moving_weights = rows
+    n = x0.size
+    visited = (np.empty(max_evaluations), np.empty((max_evaluations, n)), np.empty((max_evaluations, state[0].size)),
+               np.empty((max_evaluations,) + state[1].shape), np.empty((max_evaluations,) + state[2].shape),
+               np.empty((max_evaluations, state[3].size)))
+    flags = np.zeros(5, dtype=np.int64)
+    flags[LINEARIZED] = -1
+    memory = (state, flags, np.zeros(n), np.zeros(n))
+    factor, data = np.zeros((masses.size, newton[3][3])), np.zeros(jacobian[6][2].size)
+    fixed = (newton, constants, tol, max_steps, (positions, weights, points), visited, jacobian, masses, clock,
+             clock_id, seconds)
+    return memory, factor, data, fixed, (moving, moving_rows, moving_weights)
+
+
+def prepare_model(x0, memory, factor, data, fixed) -> None:
+    """One residual evaluation of ``_model`` (``model_arguments``' values), which compiles or loads
+    it with least_sag_loop's argument types: priming's first child runs this, so that its sibling,
+    compiling the loop, loads ``_model`` instead of compiling it too (frontend.priming)."""
+    state, flags, at, at_linear = memory
+    _model(np.bool_(False), np.array(x0, dtype=float), state, flags, at, (at_linear, factor, data), fixed)

@@ -60,3 +60,22 @@ def test_friction_takes_the_python_least_sag():
     strand = head_groom(1, 30, seed=2)[0]
     assert not module.compiled_least_sag(Problem(strand, bodies=[HEAD], friction=0.5))
     assert module.compiled_least_sag(Problem(strand, bodies=[HEAD]))
+
+
+def test_priming_compiles_the_model_kernel_with_the_loops_argument_types(monkeypatch):
+    """compile_model (priming's first child) must compile least_sag_loop._model exactly as the loop
+    calls it, or the sibling child, compiling the loop, compiles the model a second time: the types
+    of its call are the loop's own arguments and the arrays the loop makes (x, the linearization)."""
+    import numba
+
+    from sagfree.solvers import least_sag_loop
+
+    problem = INFEASIBLE["long-groom-strand"]()
+    module.least_sag(problem, np.clip(problem.p0, problem.lower, problem.upper), max_evaluations=3)
+    module.compile_model(problem)
+    assert len(least_sag_loop._model.signatures) == 1
+    (loop,), (model,) = least_sag_loop.least_sag_loop.signatures, least_sag_loop._model.signatures
+    memory, factor, data, fixed = loop[3], loop[4], loop[5], loop[6]
+    vector = numba.typeof(np.zeros(3))
+    assert model == (numba.types.boolean, vector, *memory.types[:3],
+                     numba.types.Tuple((memory.types[3], factor, data)), fixed)

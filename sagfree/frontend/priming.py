@@ -9,9 +9,10 @@ process's first warm-up, ``primed_in_child`` runs asc's warm-up (whose kernels e
 stabilization uses) and the solver's in a fresh interpreter, which compiles and stores the kernels
 and then exits, and the process itself loads them from the cache. Two children compile at once,
 each its own share of the kernels: the second asc's warm paths (frontend.warm.warm_paths: the
-compiled outer loop, which nothing else calls) and the forward check's, the first all the rest; the
-two shares take about as long (on a 2-core machine 119 s each, where the forward check in the first
-child made it 137 s against the second's 104 s; benchmarks/RESULTS.md).
+compiled outer loop, which nothing else calls) and the least sag's compiled loop, the first all the
+rest, the forward check and, first of all, the least sag's model kernel with the static solve it
+calls, which the second then loads (on a 2-core machine 142 and 119 s; 124 and 150 s with the
+least sag's model and the forward check in the second; benchmarks/RESULTS.md).
 The first child's exit status decides: where the second fails, the process compiles what it
 missed in place, as without priming. What tells that this machine's caches already hold them is a
 stamp file under ``$SAGFREE_CACHE/primed``, named by a digest of what
@@ -52,10 +53,11 @@ _INTERPRETER = re.compile(r"(python|pypy)[\d.]*(\.exe)?", re.IGNORECASE)
 #: each child takes this process's import path and the arguments (pickled on stdin), then compiles its share
 _CHILD_START = ("import pickle, sys; path, (solver, options, model) = pickle.loads(sys.stdin.buffer.read()); "
                 "sys.path[:] = path; from sagfree.frontend import warm; ")
-#: the first child: asc's warm-up but its warm paths, the solver's
-_CHILD_CODE = _CHILD_START + "warm.warm_up('asc', None, model, paths=False); warm.warm_up(solver, options, model)"
-#: the second child, at the same time: asc's warm paths (its compiled outer loop), the forward check's
-_PATHS_CODE = _CHILD_START + "warm.warm_paths('asc', None, model); warm.warm_check(model)"
+#: the first child: asc's warm-up but its warm paths, the forward check's, the solver's
+_CHILD_CODE = _CHILD_START + ("warm.warm_up('asc', None, model, paths=False); warm.warm_check(model); "
+                              "warm.warm_up(solver, options, model)")
+#: the second child, at the same time: asc's warm paths (its compiled outer loop), the least sag's loop
+_PATHS_CODE = _CHILD_START + "warm.warm_paths('asc', None, model)"
 
 
 def primed_in_child(solver: str, solver_options: dict | None, problem_options: dict | None) -> bool:

@@ -39,7 +39,7 @@ from sagfree.linalg import cholesky
 from sagfree.solvers import interior_point, reaction_start, sag_operator
 from sagfree.solvers.alm import zero_counts
 from sagfree.solvers.least_residual import least_residual
-from sagfree.solvers.least_sag import least_sag
+from sagfree.solvers.least_sag import compile_model, least_sag
 from sagfree.solvers.statics_start import unbalanceable
 
 from .priming import primed_in_child
@@ -175,8 +175,8 @@ def warm_paths(solver: str, solver_options: dict | None = None, problem_options:
     """The warm-up strand solved along the solver's warm paths alone (SolverEntry.warm_paths), the
     part of ``warm_up`` that priming's second child runs while the first runs the rest: for asc
     the compiled outer loop, the largest group of kernels that nothing else calls; and every
-    solver's best effort, the least sag's compiled loop (solvers.least_sag_loop, ~25 s to compile,
-    which made the first child the longer one). Raises what the solve raises (the child's exit
+    solver's best effort, the least sag's compiled loop (solvers.least_sag_loop; its model kernel,
+    which the first child compiles first, loaded). Raises what the solve raises (the child's exit
     status is all that reads it)."""
     entry = solver_entry(solver)
     problem = _solved_along(entry, solver_options, problem_options or {}, entry.warm_paths)
@@ -221,10 +221,14 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     reach it), a stabilization round taken from its optimum (the warm-up strand is stable, and
     the round's kernels, floor_steps, otherwise compile or load in the first stabilized strand of
     each worker of a batch), one Newton step of its static solve, one step of the least residual
-    and, with ``paths`` (without: priming's sibling child compiles it, ``warm_paths``), two
-    evaluations of the least sag (formulation.newton, solvers.least_residual,
-    solvers.least_sag_loop: the best effort of an infeasible strand runs them, and would load them
-    inside the first one's time)."""
+    and, with ``paths``, two evaluations of the least sag (formulation.newton,
+    solvers.least_residual, solvers.least_sag_loop: the best effort of an infeasible strand runs
+    them, and would load them inside the first one's time). Without ``paths`` (priming's first
+    child) the least sag's loop is left to the sibling child (``warm_paths``), and its model kernel
+    is compiled here first, with the static solve it calls, so that the sibling loads both: the
+    children took 123 and 146 s with the whole least sag in the second, 142 and 119 s so."""
+    if not paths:  # first: the sibling child, compiling the least sag's loop, then finds its model kernel cached
+        compile_model(_warm_strand(problem_options))
     problem = _solved_along(entry, solver_options, problem_options, ({}, *(entry.warm_paths if paths else ())))
     problem.constraint_hessian(problem.p0, np.zeros(problem.free_index.size))
     equilibrium(problem, problem.p0, max_steps=1)
