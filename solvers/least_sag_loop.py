@@ -5,16 +5,21 @@ An evaluation of the least sag is a continued static solve (newton.newton_kernel
 point a linearization (the free Hessian band at the equilibrium, its banded Cholesky factor, dc/dp
 there by at_state.jacobian_values) and each step conjugate gradients through the sag operator
 (solvers.sag_operator); driven from Python, the calls between them were ~12% of an infeasible
-strand's time. ``least_sag_loop`` runs the whole minimization and returns the visited equilibria;
-the candidates' confirmation from q* (least_sag.least_sag) stays in Python: at most VERIFIED static
-solves, each one compiled call.
+strand's time. ``least_sag_loop`` runs the whole minimization and records the visited equilibria in
+arrays made by ``model_arguments``; the candidates' confirmation from q* (least_sag.least_sag)
+stays in Python: at most VERIFIED static solves, each one compiled call.
 
 The model's state lives in arrays that the loop's helpers update in place: the last equilibrium
 found (q and its frames), the point p it is at, and the last linearization (the p and equilibrium
 it was taken at, K's factor and B's values); ``flags`` numbers the equilibria found so that "the
 linearization is at the current equilibrium" is StaticSag's ``known[0] is self.state``. The
 arithmetic is StaticSag's and reflective_least_squares' (the same kernels and numeric helpers,
-solvers.reflective), so the two paths visit the same points to rounding (tests/test_least_sag.py).
+solvers.reflective), so the two paths visit the same points bit for bit (tests/test_least_sag.py).
+
+numba optimizes every kernel together with the whole call tree linked into it, so each kernel
+that calls the static solve pays for it again: the model's evaluations are one kernel (``_model``)
+holding one call of the static solve and one of the linearization, which compiled in 25 s with
+the loop, where a kernel per helper took 35 s and everything inlined 52 s.
 """
 from __future__ import annotations
 
