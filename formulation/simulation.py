@@ -69,7 +69,7 @@ from .frames import Frames, transport_frames, unit
 from .newton import (ARMIJO, MAX_HALVINGS, MAX_REJECTED, MU_MIN, MU_STATIC, NO_STEP, NON_FINITE,
                      OUT_OF_STEPS, REBASE_ANGLE, STAGNATION_STEPS, STEP_TOLERANCE, CONVERGED, STAGNATED, TINY_STEP,
                      length_keeping_step, newton_kernel, outcome_message, stagnated)
-from .newton import roundoff_floor as newton_roundoff_floor
+from .newton import roundoff_floor as newton_roundoff_floor  # simulation.roundoff_floor wraps it
 from .problem import Problem
 
 #: Newton has converged when the scaled residual max |grad Phi / D| is below this (the other rules

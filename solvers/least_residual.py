@@ -9,13 +9,13 @@ least-residual points. The method is projected Levenberg-Marquardt from each of 
 either can be the better basin), keeping the lowest. Each step is a box QP on diag(eps w + 1e-12 +
 lambda diag(J^T J)) + J^T J solved by MPRGP with the active-set Cholesky (mprgp.box_qp),
 warm-started with the previous step's active bounds (without it each QP started from the free face
-and walked the active set back, 2.5x the factorizations), then an Armijo line search on the
-objective. Marquardt's lambda adapts as a trust region's radius would (``_next_damping``): divided
-by alpha after a step the line search cut to alpha, so the next step is about as long as the last
-one that held, and by DAMPING_FALL after a full step, down to MIN_DAMPING. With lambda fixed at its
-floor, the long strands' steps were cut 5-8 times each and their QPs walked through many active sets
-that the cut step never reached: the adaptive lambda took 14% less time on 60 strands of 100
-vertices at 5x their length, with the same static sags (benchmarks/RESULTS.md). A run stops when its
+and walked the active set back), then an Armijo line search on the objective. Marquardt's lambda
+adapts as a trust region's radius would (``_next_damping``): divided by alpha after a step the line
+search cut to alpha, so the next step is about as long as the last one that held, and by
+DAMPING_FALL after a full step, down to MIN_DAMPING. With lambda fixed at its floor, the long
+strands' steps were cut several times each and their QPs walked through active sets that the cut
+step never reached: the adaptive lambda took 14% less time on infeasible strands, with the same
+static sags (benchmarks/RESULTS.md). A run stops when its
 remaining steps, at the rate of its last one, could not bring its objective below (1 -
 LEAST_RESIDUAL_GAIN) of itself nor, for the second run, below the first run's: on long strands the
 stall point's run reached its value in a step or two and the run from p0 crawled towards a worse

@@ -61,12 +61,11 @@ from sagfree.formulation.frames import Frames
 from sagfree.formulation.problem import Problem
 from sagfree.formulation.simulation import RESIDUAL_TOLERANCE, Equilibrium, equilibrium, static_solve_constants
 from sagfree.linalg import timing
-from sagfree.linalg.cholesky import band_cholesky, band_solve_many
 
 from .least_sag_loop import NEWTON, VISITS, least_sag_loop, model_arguments, prepare_model
 from .reflective import reflective_least_squares
-from .sag_operator import (gauss_newton_direction, hutchinson_norms, rows_transposed_times, sag_product,
-                           sag_transposed_product, tangent_step)
+from .sag_operator import (estimated_column_norms, gauss_newton_direction, sag_product, sag_transposed_product,
+                           scaled_rows, stiffness_factor, tangent_step)
 
 #: Model evaluations (static solves) the minimization may take: enough for the large early gains,
 #: bounded so that a groom of long hair costs seconds per strand.
@@ -105,15 +104,8 @@ class StaticSag:
     def __init__(self, problem: Problem, start: Equilibrium):
         self.problem, self.state, self.at, self.newton = problem, start, None, 0
         self.visited: list[tuple[float, np.ndarray, np.ndarray, Frames]] = []  # (S, p, q, frames) of each one found
-        weight = np.sqrt(problem.masses / problem.masses.sum()) / problem.strand.length
-        # the residuals' rows: each vertex position's index in q and its weight
-        self.positions, self.position_weights = dofs.position_index(problem.n_vertices).ravel(), np.repeat(weight, 3)
-        # the rows whose position is free (a prescribed one has no sensitivity: its row of the
-        # Jacobian is zero) and their DOFs' rows in the free block of K
-        row_of = np.full(problem.q_star.size, -1)
-        row_of[problem.free_index] = np.arange(problem.free_index.size)
-        self.moving = np.flatnonzero(row_of[self.positions] >= 0)
-        self.moving_rows, self.moving_weights = row_of[self.positions][self.moving], self.position_weights[self.moving]
+        self.positions, self.position_weights, self.moving, self.moving_rows, self.moving_weights = \
+            residual_rows(problem)
         self._linearized = None  # (state, p, factor, B) of the last _linearization
 
     def _settle(self, p: np.ndarray) -> bool:
@@ -174,15 +166,8 @@ class StaticSag:
         Relative error about sqrt(2 / probes) (25% at 32), enough for variable scales that span
         ~1e7 between the blocks."""
         factor, (indptr, indices, data) = self._linearization(p)
-        solved = band_solve_many(factor, self._pulled(probe_signs(self.moving.size, probes, seed)))  # (free, probes)
-        return hutchinson_norms(rows_transposed_times(indptr, indices, data, solved, p.size))  # J^T v's rows
-
-    def _pulled(self, values: np.ndarray) -> np.ndarray:
-        """(P^T W) values on the free DOFs: the moving residual rows' ``values`` (one row each, any
-        columns) weighted and placed at their DOFs' rows of K, zero elsewhere."""
-        pulled = np.zeros((self.problem.free_index.size,) + values.shape[1:])
-        pulled[self.moving_rows] = self.moving_weights.reshape((-1,) + (1,) * (values.ndim - 1)) * values
-        return pulled
+        return estimated_column_norms(factor, indptr, indices, data, self.moving_rows, self.moving_weights,
+                                      probe_signs(self.moving.size, probes, seed), p.size)
 
     def _linearization(self, p: np.ndarray):
         """(Cholesky factor of K, B) at the equilibrium of p (continued there if it is not the last
@@ -198,15 +183,11 @@ class StaticSag:
         if known is not None and known[0] is state and np.array_equal(known[1], p):
             return known[2], known[3]
         band = problem.free_band(problem.static_hessian_band(p, state.q, state.frames))
-        factor, shift = band_cholesky(band), 0.0
-        masses = problem.dof_masses[free]
-        while factor is None:
-            shift = max(4.0 * shift, 1.0)
-            shifted = band.copy()
-            shifted[0] += shift * masses
-            factor = band_cholesky(shifted)
-        indptr, indices, data = problem.strand_jacobian(p, state.q, state.frames).csr()
-        scaled = (indptr, indices, data * np.repeat(problem.row_scale[free], np.diff(indptr)))
+        factor = stiffness_factor(band, np.ascontiguousarray(problem.dof_masses[free]))
+        jacobian = problem.strand_jacobian(p, state.q, state.frames)
+        pattern = jacobian.pattern
+        scaled = (pattern.csr_indptr, pattern.csr_indices,
+                  scaled_rows(jacobian.data, pattern.csr_indptr, pattern.csr_order, problem.row_scale[free]))
         self._linearized = (state, p.copy(), factor, scaled)
         return factor, scaled
 
@@ -296,20 +277,32 @@ def _minimized_compiled(problem: Problem, continued: Equilibrium, p: np.ndarray,
     return int(evaluations), int(flags[NEWTON]), visited
 
 
+def residual_rows(problem: Problem) -> tuple:
+    """The residuals' rows of S (module docstring): each vertex position's index in q and its weight
+    sqrt(m_i / M) / L; the rows whose position is free (a prescribed one has no sensitivity: its
+    row of the Jacobian is zero), their DOFs' rows in the free block of K and their weights."""
+    weight = np.sqrt(problem.masses / problem.masses.sum()) / problem.strand.length
+    positions, weights = dofs.position_index(problem.n_vertices).ravel(), np.repeat(weight, 3)
+    row_of = np.full(problem.q_star.size, -1)
+    row_of[problem.free_index] = np.arange(problem.free_index.size)
+    moving = np.flatnonzero(row_of[positions] >= 0)
+    return positions, weights, moving, row_of[positions][moving], weights[moving]
+
+
 def _loop_arguments(problem: Problem, continued: Equilibrium, p: np.ndarray, max_evaluations: int):
     """(x0, least_sag_loop.model_arguments, the column norms' signs) for a minimization from p
     continuing ``continued``."""
-    model = StaticSag(problem, continued)  # its residual rows and weights
+    positions, weights, moving, moving_rows, moving_weights = residual_rows(problem)
     frames = continued.frames
     state = tuple(np.array(a, dtype=float) for a in (continued.q, frames.tangents, frames.a1, frames.reference_twist))
-    rows = (np.ascontiguousarray(model.positions, dtype=np.int64), model.position_weights,
-            np.ascontiguousarray(problem.strand.points, dtype=float).ravel(), model.moving,
-            np.ascontiguousarray(model.moving_rows, dtype=np.int64), model.moving_weights)
+    rows = (np.ascontiguousarray(positions, dtype=np.int64), weights,
+            np.ascontiguousarray(problem.strand.points, dtype=float).ravel(), moving,
+            np.ascontiguousarray(moving_rows, dtype=np.int64), moving_weights)
     arguments = model_arguments(p, state, problem.newton_kernels, static_solve_constants(problem),
                                 problem.state_jacobian_kernels, rows,
                                 np.ascontiguousarray(problem.dof_masses[problem.free_index]), RESIDUAL_TOLERANCE,
                                 CONTINUATION_STEPS, int(max_evaluations), *timing.CLOCK, np.zeros(2))
-    return np.array(p, dtype=float), arguments, probe_signs(model.moving.size, NORM_PROBES, 0)
+    return np.array(p, dtype=float), arguments, probe_signs(moving.size, NORM_PROBES, 0)
 
 
 def compile_model(problem: Problem) -> None:

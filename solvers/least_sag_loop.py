@@ -17,9 +17,10 @@ arithmetic is StaticSag's and reflective_least_squares' (the same kernels and nu
 solvers.reflective), so the two paths visit the same points bit for bit (tests/test_least_sag.py).
 
 numba optimizes every kernel together with the whole call tree linked into it, so each kernel
-that calls the static solve pays for it again: the model's evaluations are one kernel (``_model``)
-holding one call of the static solve and one of the linearization, which compiled in 25 s with
-the loop, where a kernel per helper took 35 s and everything inlined 52 s.
+that calls the static solve pays for it again, and each inlined copy of a call adds to its
+kernel's compile: the model's evaluations are one kernel (``_model``) holding one call of the
+static solve and one of the linearization (a kernel per helper compiled 40% longer;
+benchmarks/RESULTS.md).
 """
 from __future__ import annotations
 
@@ -30,11 +31,10 @@ from sagfree.formulation import at_state
 from sagfree.formulation.newton import CONVERGED, MU_MIN, STAGNATED, TINY_STEP, newton_kernel, roundoff_floor
 from sagfree.formulation.parameters import evaluate_slots
 from sagfree.linalg import timing
-from sagfree.linalg.cholesky import factor_active, solve_rows
 
 from . import reflective as trf
-from .sag_operator import (CG_ITERATIONS, CG_TOLERANCE, cgls, hutchinson_norms, jacobian_product,
-                           jacobian_transposed_product, rows_transposed_times, tangent_step)
+from .sag_operator import (CG_ITERATIONS, CG_TOLERANCE, cgls, estimated_column_norms, jacobian_product,
+                           jacobian_transposed_product, scaled_rows, stiffness_factor, tangent_step)
 
 #: places in ``flags``: the equilibrium's number, whether ``at`` holds its p, the number of the
 #: equilibrium the linearization was taken at (-1: none yet), the static solves' Newton steps, and
@@ -169,23 +169,8 @@ def _linearized(p, state, newton, constants, jacobian, masses, clock, clock_id, 
     band, values = at_state.linearization(p, q, tangents, a1, twist, newton, jacobian)
     now = timing.clock_seconds(clock, clock_id, buffer)
     seconds[_MODEL] += now - started
-    size, width = band.shape[1], band.shape[0]
-    no_border, no_corner, everything = np.zeros((0, size)), np.zeros((0, 0)), np.ones(size, dtype=np.bool_)
-    factor = np.empty((size, width))
-    factored, shift = factor_active(band.copy(), no_border, no_corner, everything, factor, no_border, no_corner,
-                                    np.int64(0), np.int64(0)), 0.0
-    while not factored:
-        shift = max(4.0 * shift, 1.0)
-        shifted = band.copy()
-        for j in range(size):
-            shifted[0, j] += shift * masses[j]
-        factored = factor_active(shifted, no_border, no_corner, everything, factor, no_border, no_corner,
-                                 np.int64(0), np.int64(0))
-    row_scale, (indptr, _, order) = constants[0], jacobian[6]
-    data = np.empty(order.size)
-    for r in range(indptr.size - 1):
-        for t in range(indptr[r], indptr[r + 1]):
-            data[t] = values[order[t]] * row_scale[r]
+    factor = stiffness_factor(band, masses)
+    data = scaled_rows(values, jacobian[6][0], jacobian[6][2], constants[0])
     seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - now
     return factor, data
 
@@ -202,18 +187,6 @@ def _transposed_product(operator, u):  # pragma: no cover - compiled
     """J^T u for the sag operator (sag_operator.sag_transposed_product)."""
     factor, indptr, indices, data, moving, rows, weights, _, columns = operator
     return jacobian_transposed_product(factor, indptr, indices, data, moving, rows, weights, columns, u)
-
-
-@numba.njit(cache=True, inline="always")
-def _column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs, columns):  # pragma: no cover
-    """StaticSag.estimated_column_norms at a linearization: Hutchinson's estimate from the
-    fixed random ``signs`` (moving rows x probes)."""
-    pulled = np.zeros((factor.shape[0], signs.shape[1]))
-    for i in range(moving_rows.size):
-        for k in range(signs.shape[1]):
-            pulled[moving_rows[i], k] = moving_weights[i] * signs[i, k]
-    solve_rows(factor, pulled)
-    return hutchinson_norms(rows_transposed_times(indptr, indices, data, pulled, columns))
 
 
 @numba.njit(cache=True, inline="always")
@@ -260,7 +233,7 @@ def least_sag_loop(x0, lower, upper, memory, factor, data, fixed, operator_rows,
     operator = (factor, indptr, indices, data, moving, moving_rows, moving_weights, size, n)
     started = timing.clock_seconds(clock, clock_id, buffer)
     g = _transposed_product(operator, f)
-    scale = trf.scales_of(_column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs, n))
+    scale = trf.scales_of(estimated_column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs, n))
     seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
     since = 0
     v, dv = trf.cl_scaling_vector(x, g, lower, upper)
@@ -277,7 +250,8 @@ def least_sag_loop(x0, lower, upper, memory, factor, data, fixed, operator_rows,
         if since >= rescale_every:
             factor, data = _linearization(x, memory, factor, data, fixed)
             started = timing.clock_seconds(clock, clock_id, buffer)
-            scale = trf.scales_of(_column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs, n))
+            scale = trf.scales_of(estimated_column_norms(factor, indptr, indices, data, moving_rows, moving_weights,
+                                                         signs, n))
             seconds[_ALGEBRA] += timing.clock_seconds(clock, clock_id, buffer) - started
             since = 0
         started = timing.clock_seconds(clock, clock_id, buffer)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sagfree.linalg.cholesky import plain_solve
+from sagfree.linalg.cholesky import factor_active, plain_solve, solve_rows
 from sagfree.linalg.compressed import csc_matvec, csc_rmatvec
 from sagfree.linalg.timing import LINEAR_ALGEBRA, timed
 
@@ -38,7 +38,9 @@ def compile_kernels() -> None:
     gauss_newton_direction(*operator, np.ones(2), np.ones(2), np.ones(2))
     rows_transposed_times(indptr, indices, data, np.ones((2, 1)), 2)
     tangent_step(operator[0], indptr, indices, data, np.ones(2))
-    hutchinson_norms(np.ones((2, 1)))
+    estimated_column_norms(operator[0], indptr, indices, data, rows, np.ones(2), np.ones((2, 1)), 2)
+    scaled_rows(data, indptr, rows, np.ones(2))
+    stiffness_factor(np.ones((2, 2)), np.ones(2))
 
 
 @timed(LINEAR_ALGEBRA)
@@ -153,14 +155,53 @@ def rows_transposed_times(indptr, indices, data, x, columns):  # pragma: no cove
 
 
 @numba.njit(cache=True)
-def hutchinson_norms(products):  # pragma: no cover - compiled
-    """sqrt(mean_k products[j, k]^2) per row j: the column norms' estimate from J^T v over random
-    signs v (solvers.least_sag.StaticSag.estimated_column_norms), summed in order."""
-    rows, probes = products.shape
-    out = np.empty(rows)
-    for j in range(rows):
+def estimated_column_norms(factor, indptr, indices, data, moving_rows, moving_weights, signs,
+                           columns):  # pragma: no cover - compiled
+    """Hutchinson's estimate of J's column norms, |J e_j|^2 = E[(J^T v)_j^2] over random signs v:
+    sqrt of the mean over the columns of ``signs`` (moving rows x probes) of (J^T v)_j^2, each J^T v
+    one band solve (solvers.least_sag.StaticSag.estimated_column_norms)."""
+    probes = signs.shape[1]
+    pulled = np.zeros((factor.shape[0], probes))  # (P^T W) v on the free DOFs
+    for i in range(moving_rows.size):
+        for k in range(probes):
+            pulled[moving_rows[i], k] = moving_weights[i] * signs[i, k]
+    solve_rows(factor, pulled)
+    products = rows_transposed_times(indptr, indices, data, pulled, columns)
+    out = np.empty(columns)
+    for j in range(columns):
         total = 0.0
         for k in range(probes):
             total += products[j, k] * products[j, k]
         out[j] = np.sqrt(total / probes)
     return out
+
+
+@numba.njit(cache=True)
+def stiffness_factor(band, masses):  # pragma: no cover - compiled
+    """The Cholesky factor of K (the free static Hessian, lower band storage), shifted by the mass
+    metric (shift 1, 4, 16, ... times ``masses``) until it factors where E has a saddle there, as
+    Newton's damping shifts it."""
+    size, width = band.shape[1], band.shape[0]
+    no_border, no_corner, everything = np.zeros((0, size)), np.zeros((0, 0)), np.ones(size, dtype=np.bool_)
+    factor = np.empty((size, width))
+    factored, shift = factor_active(band.copy(), no_border, no_corner, everything, factor, no_border, no_corner,
+                                    np.int64(0), np.int64(0)), 0.0
+    while not factored:
+        shift = max(4.0 * shift, 1.0)
+        shifted = band.copy()
+        for j in range(size):
+            shifted[0, j] += shift * masses[j]
+        factored = factor_active(shifted, no_border, no_corner, everything, factor, no_border, no_corner,
+                                 np.int64(0), np.int64(0))
+    return factor
+
+
+@numba.njit(cache=True)
+def scaled_rows(values, indptr, order, row_scale):  # pragma: no cover - compiled
+    """B's compressed-row values, B = D dc/dp: dc/dp's CSC ``values`` taken in row order (the
+    pattern's csr ``order``, rows ``indptr``), each row times its force scale D."""
+    data = np.empty(order.size)
+    for r in range(indptr.size - 1):
+        for t in range(indptr[r], indptr[r + 1]):
+            data[t] = values[order[t]] * row_scale[r]
+    return data

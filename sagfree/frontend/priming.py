@@ -11,8 +11,8 @@ and then exits, and the process itself loads them from the cache. Two children c
 each its own share of the kernels: the second asc's warm paths (frontend.warm.warm_paths: the
 compiled outer loop, which nothing else calls) and the least sag's compiled loop, the first all the
 rest, the forward check and, first of all, the least sag's model kernel with the static solve it
-calls, which the second then loads (on a 2-core machine 142 and 119 s; 124 and 150 s with the
-least sag's model and the forward check in the second; benchmarks/RESULTS.md).
+calls, which the second then loads (the longer child took 142 s on a 2-core machine, 150 s with
+the least sag's model and the forward check in the second; benchmarks/RESULTS.md).
 The first child's exit status decides: where the second fails, the process compiles what it
 missed in place, as without priming. What tells that this machine's caches already hold them is a
 stamp file under ``$SAGFREE_CACHE/primed``, named by a digest of what

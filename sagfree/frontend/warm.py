@@ -225,8 +225,8 @@ def _solve_warm_strand(entry, solver_options: dict | None, problem_options: dict
     solvers.least_residual, solvers.least_sag_loop: the best effort of an infeasible strand runs
     them, and would load them inside the first one's time). Without ``paths`` (priming's first
     child) the least sag's loop is left to the sibling child (``warm_paths``), and its model kernel
-    is compiled here first, with the static solve it calls, so that the sibling loads both: the
-    children took 123 and 146 s with the whole least sag in the second, 142 and 119 s so."""
+    is compiled here first, with the static solve it calls, so that the sibling loads both
+    (frontend.priming balances the two children so)."""
     if not paths:  # first: the sibling child, compiling the least sag's loop, then finds its model kernel cached
         compile_model(_warm_strand(problem_options))
     problem = _solved_along(entry, solver_options, problem_options, ({}, *(entry.warm_paths if paths else ())))
